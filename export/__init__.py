@@ -1,0 +1,1 @@
+"""equipose.export — torch → ONNX with the group convolutions as static Gather ops (needs the ``train`` extra)."""

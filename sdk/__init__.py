@@ -1,0 +1,24 @@
+"""equipose — category-level 6D object pose from a depth camera, on a CPU.
+
+The SDK core needs only numpy, onnxruntime, opencv and scipy (no torch). Heavy parts import lazily.
+"""
+from __future__ import annotations
+
+__version__ = "0.1.0"
+
+from . import errors  # noqa: F401  (cheap, always available)
+
+_LAZY = {
+    "PoseEstimator": ("equipose.estimator", "PoseEstimator"),
+    "PoseResult": ("equipose.result", "PoseResult"),
+}
+
+__all__ = ["__version__", "errors"] + sorted(_LAZY)
+
+
+def __getattr__(name):
+    if name in _LAZY:
+        import importlib
+        mod, attr = _LAZY[name]
+        return getattr(importlib.import_module(mod), attr)
+    raise AttributeError(f"module 'equipose' has no attribute {name!r}")

@@ -1,0 +1,1 @@
+"""CLI subcommands of the SDK (runtime side: no torch)."""

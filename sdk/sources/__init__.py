@@ -1,0 +1,1 @@
+"""Depth frame sources (live OAK camera, .mcap replay, PNG folders, PCD files)."""

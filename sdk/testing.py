@@ -1,0 +1,97 @@
+"""Equivariance test harness shipped to users (numpy; works for torch modules and ONNX sessions alike).
+
+Convention:
+    A *model function* maps points [B, N, 3] float32 (model units) to a dict of numpy arrays with the ONNX contract
+    names (``canonical_shape`` [B, M, 3], ``hypothesis_rotations`` [B, 60, 3, 3], ``hypothesis_translations``
+    [B, 60, 3], ``hypothesis_scores`` [B, 60]) and optionally ``features`` [B, P, 60, C] (rotation axis 2).
+    Rotating the input by group element g (about the origin) must give: the same canonical shape; hypothesis j moved
+    to index ``CAYLEY[g, j]`` as (g·R_j, g·t_j); scores and features re-indexed the same way. Translating the input
+    by v must give the same canonical shape and every t_j shifted by v.
+
+Use ``assert_equivariant(fn, points)`` in tests of any layer or model; ``torch_model_fn`` and ``onnx_model_fn``
+adapt a torch module or an onnxruntime session to a model function.
+"""
+from __future__ import annotations
+
+from typing import Callable, Iterable
+
+import numpy as np
+
+from . import icosahedral
+
+__all__ = ["assert_equivariant", "equivariance_errors", "torch_model_fn", "onnx_model_fn"]
+
+ModelFn = Callable[[np.ndarray], dict]
+
+
+def equivariance_errors(fn: ModelFn, points: np.ndarray, rotations: Iterable[int] | None = None,
+                        translation: np.ndarray | None = None) -> dict:
+    """Max abs error per output over the given group elements (default: all 60) and one translation.
+
+    Returns ``{"canonical_shape", "hypothesis_rotations", "hypothesis_translations", "hypothesis_scores",
+    ["features"], "translation_shape", "translation_t", "max"}`` (floats).
+    """
+    points = np.asarray(points, dtype=np.float32)
+    if points.ndim != 3 or points.shape[-1] != 3:
+        raise ValueError(f"points must be [B, N, 3], got {points.shape}")
+    base = fn(points)
+    errs: dict = {}
+
+    def upd(key, value):
+        errs[key] = max(errs.get(key, 0.0), float(value))
+
+    for g in (range(icosahedral.NUM_ROTATIONS) if rotations is None else rotations):
+        Rg = icosahedral.ANCHORS[g].astype(np.float32)
+        out = fn(points @ Rg.T)
+        perm = icosahedral.CAYLEY[g]                                            # j ↦ index of A_g·A_j
+        upd("canonical_shape", np.abs(out["canonical_shape"] - base["canonical_shape"]).max())
+        upd("hypothesis_rotations", np.abs(out["hypothesis_rotations"][:, perm] - Rg @ base["hypothesis_rotations"]).max())
+        upd("hypothesis_translations",
+            np.abs(out["hypothesis_translations"][:, perm] - base["hypothesis_translations"] @ Rg.T).max())
+        upd("hypothesis_scores", np.abs(out["hypothesis_scores"][:, perm] - base["hypothesis_scores"]).max())
+        if "features" in base and "features" in out:
+            upd("features", np.abs(out["features"][:, :, perm] - base["features"]).max())
+    v = np.array([0.3, -0.2, 0.5], np.float32) if translation is None else np.asarray(translation, np.float32)
+    out = fn(points + v)
+    errs["translation_shape"] = float(np.abs(out["canonical_shape"] - base["canonical_shape"]).max())
+    errs["translation_t"] = float(np.abs(out["hypothesis_translations"] - base["hypothesis_translations"] - v).max())
+    errs["max"] = max(errs.values())
+    return errs
+
+
+def assert_equivariant(fn: ModelFn, points: np.ndarray, rotations: Iterable[int] | None = None,
+                       atol: float = 1e-4, translation: np.ndarray | None = None) -> dict:
+    """Raise ``AssertionError`` naming the worst output if any equivariance error exceeds ``atol``; return errors."""
+    errs = equivariance_errors(fn, points, rotations, translation)
+    bad = {k: v for k, v in errs.items() if k != "max" and v > atol}
+    if bad:
+        raise AssertionError(f"equivariance violated (atol {atol}): " + ", ".join(f"{k}={v:.2e}" for k, v in bad.items()))
+    return errs
+
+
+def torch_model_fn(model, with_features: bool = True) -> ModelFn:
+    """Adapt an ``equipose.train.EquiPoseNet`` (put in eval mode) to a numpy model function."""
+    import torch
+
+    model.eval()
+
+    def fn(points):
+        with torch.no_grad():
+            out = model(torch.from_numpy(np.ascontiguousarray(points)), return_aux=with_features)
+        keep = set(("canonical_shape", "hypothesis_rotations", "hypothesis_translations", "hypothesis_scores"))
+        if with_features:
+            keep.add("features")
+        return {k: v.numpy() for k, v in out.items() if k in keep}
+
+    return fn
+
+
+def onnx_model_fn(session) -> ModelFn:
+    """Adapt an ``onnxruntime.InferenceSession`` of an equipose model to a numpy model function."""
+    names = [o.name for o in session.get_outputs()]
+    inp = session.get_inputs()[0].name
+
+    def fn(points):
+        return dict(zip(names, session.run(None, {inp: np.ascontiguousarray(points, dtype=np.float32)})))
+
+    return fn

@@ -1,0 +1,125 @@
+"""Model tests: exact equivariance for all 60 group elements, translation behaviour, loss decreases, paper forward."""
+import numpy as np
+import pytest
+
+torch = pytest.importorskip("torch")
+
+from equipose import icosahedral as I  # noqa: E402
+from equipose.presets import count_params, get_preset  # noqa: E402
+from equipose.testing import assert_equivariant, torch_model_fn  # noqa: E402
+from equipose.train import EquiPoseNet, chamfer_min_of_60_loss  # noqa: E402
+from equipose.train.layers import InterSO3Conv, IntraSO3Conv, SeparableSO3Block  # noqa: E402
+
+
+def _cloud(rng, b, n):
+    return (rng.normal(size=(b, n, 3)) * [0.25, 0.15, 0.1] + [0.1, -0.05, 0.3]).astype(np.float32)
+
+
+@pytest.mark.parametrize("partial", [True, False])
+def test_model_equivariant_all_60(rng, partial):
+    torch.manual_seed(0)
+    model = EquiPoseNet("tiny", partial=partial)
+    x = _cloud(rng, 2, model.num_points)
+    errs = assert_equivariant(torch_model_fn(model), x, atol=1e-4)
+    assert errs["features"] <= 1e-4 and errs["canonical_shape"] <= 1e-4
+
+
+def test_small_preset_equivariant_subset(rng):
+    torch.manual_seed(1)
+    model = EquiPoseNet("small", partial=True)
+    assert_equivariant(torch_model_fn(model), _cloud(rng, 1, model.num_points), rotations=[0, 13, 27, 36, 58])
+
+
+def _layer_fn(layer_fwd):
+    """Wrap a layer as a model function exposing only ``features`` (the harness then checks the permutation)."""
+    def fn(points):
+        with torch.no_grad():
+            f = layer_fwd(torch.from_numpy(points)).numpy()
+        b = points.shape[0]
+        # constant dummies for the contract outputs so that the harness compares only the features
+        return {"canonical_shape": np.zeros((b, 1, 3)), "hypothesis_rotations": np.tile(np.eye(3), (b, 60, 1, 1)) * 0,
+                "hypothesis_translations": np.zeros((b, 60, 3)), "hypothesis_scores": np.zeros((b, 60)),
+                "features": f}
+    return fn
+
+
+def test_layers_equivariant(rng):
+    torch.manual_seed(2)
+    cfg = get_preset("tiny")
+    lift = SeparableSO3Block(cfg.layers[0], cfg.kernel_points, lifting=True).eval()
+    inter = InterSO3Conv(cfg.layers[1], cfg.kernel_points)
+    intra = IntraSO3Conv(cfg.layers[1].c_out, 5)
+
+    def stack(p):
+        xyz, f = lift(p, None)
+        return intra(inter(xyz, f))
+
+    x = _cloud(rng, 1, cfg.num_points) - 0.0
+    x = x - x.mean(1, keepdims=True)
+    errs = assert_equivariant(_layer_fn(stack), x, rotations=range(0, 60, 3), translation=np.zeros(3))
+    assert errs["features"] < 1e-4
+
+
+def test_translation_shifts_hypotheses(rng):
+    torch.manual_seed(3)
+    model = EquiPoseNet("tiny", partial=True)
+    fn = torch_model_fn(model)
+    x = _cloud(rng, 1, model.num_points)
+    a, b = fn(x), fn(x + np.float32([1.5, -2.0, 0.7]))
+    assert np.abs(a["canonical_shape"] - b["canonical_shape"]).max() < 1e-4
+    assert np.abs(b["hypothesis_translations"] - a["hypothesis_translations"] - [1.5, -2.0, 0.7]).max() < 1e-4
+    assert np.abs(a["hypothesis_scores"] - b["hypothesis_scores"]).max() < 1e-4
+
+
+def test_outputs_match_contract(rng):
+    model = EquiPoseNet("tiny", partial=True).eval()
+    with torch.no_grad():
+        out = model(torch.from_numpy(_cloud(rng, 3, model.num_points)))
+    M = model.config.num_canonical_points
+    assert out["canonical_shape"].shape == (3, M, 3)
+    assert out["hypothesis_rotations"].shape == (3, 60, 3, 3)
+    assert out["hypothesis_translations"].shape == (3, 60, 3)
+    assert out["hypothesis_scores"].shape == (3, 60)
+    R = out["hypothesis_rotations"]
+    assert torch.allclose(R @ R.transpose(-1, -2), torch.eye(3).expand_as(R), atol=1e-5)
+    assert (out["canonical_shape"].abs() < 0.5).all()
+
+
+def test_param_count_matches_cost_model():
+    for name in ("tiny", "small", "paper"):
+        model = EquiPoseNet(name)
+        assert sum(p.numel() for p in model.parameters()) == count_params(name), name
+
+
+def test_training_lowers_loss():
+    torch.manual_seed(0)
+    rng = np.random.default_rng(5)
+    model = EquiPoseNet("tiny", partial=True).train()
+    n = model.num_points
+    # a tiny synthetic set: an elongated box surface in random rotations
+    pts = rng.uniform(-1, 1, size=(8, n, 3)) * [0.3, 0.12, 0.05]
+    from scipy.spatial.transform import Rotation
+    x = torch.tensor(np.einsum("bij,bnj->bni", Rotation.random(8, random_state=1).as_matrix(), pts), dtype=torch.float32)
+    opt = torch.optim.Adam(model.parameters(), lr=5e-4 * 4)
+    losses = []
+    for _ in range(25):
+        loss = chamfer_min_of_60_loss(model(x, return_aux=True))
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+        losses.append(loss.item())
+    assert np.mean(losses[-5:]) < 0.7 * np.mean(losses[:3]), losses
+
+
+def test_paper_preset_forward_cpu(rng):
+    model = EquiPoseNet("paper", partial=True).eval()
+    with torch.no_grad():
+        out = model(torch.from_numpy(_cloud(rng, 1, 1024)))
+    assert out["canonical_shape"].shape == (1, 1024, 3)
+    assert torch.isfinite(out["hypothesis_scores"]).all()
+
+
+def test_rejects_bad_shape():
+    model = EquiPoseNet("tiny")
+    with pytest.raises(ValueError):
+        model(torch.zeros(256, 3))

@@ -1,0 +1,138 @@
+"""SE(3)-equivariant layers over the 60 icosahedral rotations (EPN-60), in plain PyTorch.
+
+Convention:
+    Frame: model units (metres / scale), points centred by the caller (the model subtracts the input centroid).
+    Layout: points ``xyz`` [B, P, 3]; group features ``feats`` [B, P, A, C] (A = 60 rotations, channels last, so
+    every dense step is a MatMul over the last axis and no transpose is needed before it).
+    Rotating the input by the group element g permutes the rotation axis: ``feats'[:, :, CAYLEY[g, a]] = feats[:, :, a]``.
+
+Every index operation is ``index_select`` on a flat int64 tensor, which exports to a plain ONNX ``Gather``
+(ecosystem notes §1.3); neighbourhoods use ``topk`` (ONNX ``TopK``); downsampling is a prefix slice of the
+FPS-ordered input. No Python loop runs over points or rotations.
+"""
+from __future__ import annotations
+
+import numpy as np
+import torch
+from torch import nn
+from torch.nn import functional as F
+
+from equipose import icosahedral
+from equipose.presets import LayerSpec
+
+__all__ = ["knn_gather_index", "gather_rows", "InterSO3Conv", "IntraSO3Conv", "SeparableSO3Block", "instance_norm",
+           "LEAKY_SLOPE", "count_parameters"]
+
+LEAKY_SLOPE = 0.01
+A = icosahedral.NUM_ROTATIONS
+
+
+def knn_gather_index(support: torch.Tensor, centres: torch.Tensor, k: int) -> torch.Tensor:
+    """Flat row indices of the ``k`` nearest support points of each centre.
+
+    Args:
+        support: [B, P1, 3]; centres: [B, P2, 3] (same frame).
+    Returns:
+        int64 [B·P2·k] indices into ``support.reshape(B·P1, ...)`` (batch offset included), nearest first.
+    """
+    B, P1, _ = support.shape
+    d2 = ((centres * centres).sum(-1, keepdim=True)                     # [B, P2, 1]
+          - 2.0 * centres @ support.transpose(1, 2)                     # [B, P2, P1]
+          + (support * support).sum(-1).unsqueeze(1))                   # [B, 1, P1]
+    idx = torch.topk(d2, k, dim=-1, largest=False, sorted=True).indices  # [B, P2, k]
+    offset = (torch.arange(B, device=support.device) * P1).view(B, 1, 1)
+    return (idx + offset).reshape(-1)                                   # [B·P2·k]
+
+
+def gather_rows(x: torch.Tensor, flat_index: torch.Tensor) -> torch.Tensor:
+    """``x`` [B, P, ...] → rows ``flat_index`` of ``x.reshape(B·P, ...)`` as [len(flat_index), ...] (ONNX Gather)."""
+    return x.reshape((-1,) + tuple(x.shape[2:])).index_select(0, flat_index)
+
+
+def instance_norm(x: torch.Tensor, eps: float = 1e-5) -> torch.Tensor:
+    """Normalise each (sample, channel) over points and rotations. ``x`` [B, P, A, C] → same shape."""
+    mean = x.mean(dim=(1, 2), keepdim=True)                              # [B, 1, 1, C]
+    var = (x - mean).pow(2).mean(dim=(1, 2), keepdim=True)               # [B, 1, 1, C]
+    return (x - mean) * torch.rsqrt(var + eps)
+
+
+class InterSO3Conv(nn.Module):
+    """Point convolution with the kernel rotated by all 60 group elements (spec §2).
+
+    out[b, p, a, o] = Σ_{n,k,c} relu(1 − ‖x_n − x_p − A_a·κ_k‖² / σ) · f[b, n, a, c] · W[k, c, o]  (+ bias[o])
+    over the ``nn`` nearest neighbours n of the centre p. The centres are the first ``points_out`` input points.
+    The hat weights vanish beyond ``kernel_radius + √σ`` (≈1.41·radius), which bounds the neighbourhood.
+    """
+
+    def __init__(self, spec: LayerSpec, kernel_points: int):
+        super().__init__()
+        self.spec, self.k = spec, kernel_points
+        kern = icosahedral.kernel_points(kernel_points, spec.kernel_radius)           # [K, 3]
+        rot = np.einsum("aij,kj->aki", icosahedral.ANCHORS, kern).reshape(-1, 3)     # [A·K, 3]
+        self.register_buffer("kernel_t", torch.tensor(rot.T.copy(), dtype=torch.float32))   # [3, A·K]
+        self.register_buffer("kernel_sq", torch.tensor((rot ** 2).sum(1), dtype=torch.float32))  # [A·K]
+        self.weight = nn.Parameter(torch.empty(kernel_points * spec.c_in, spec.c_out))  # [K·Cin, Cout], k-major
+        self.bias = nn.Parameter(torch.full((spec.c_out,), 1e-3))
+        nn.init.xavier_normal_(self.weight.view(kernel_points, spec.c_in, spec.c_out).permute(2, 1, 0),
+                               gain=nn.init.calculate_gain("relu"))
+
+    def forward(self, xyz: torch.Tensor, feats: torch.Tensor | None) -> torch.Tensor:
+        """xyz [B, P1, 3], feats [B, P1, A, Cin] or None (constant ones: the lifting layer) → [B, P2, A, Cout]."""
+        s, K = self.spec, self.k
+        B, P1, _ = xyz.shape
+        P2, nn_ = s.points_out, s.neighbours
+        centres = xyz[:, :P2]                                                          # [B, P2, 3]
+        flat = knn_gather_index(xyz, centres, nn_)                                     # [B·P2·nn]
+        rel = gather_rows(xyz, flat).view(B, P2, nn_, 3) - centres.unsqueeze(2)        # [B, P2, nn, 3]
+        d2 = (rel * rel).sum(-1, keepdim=True) - 2.0 * rel @ self.kernel_t + self.kernel_sq  # [B, P2, nn, A·K]
+        w = F.relu(1.0 - d2 / s.sigma)                                                 # [B, P2, nn, A·K]
+        if feats is None:                                                              # lifting: f ≡ 1
+            g = w.sum(2).view(B, P2, A, K)                                             # [B, P2, A, K]
+        else:
+            C = feats.shape[-1]
+            nb = gather_rows(feats, flat).view(B, P2, nn_, A, C)                       # [B, P2, nn, A, C]
+            w = w.view(B, P2, nn_, A, K).permute(0, 1, 3, 4, 2)                        # [B, P2, A, K, nn]
+            g = torch.matmul(w, nb.permute(0, 1, 3, 2, 4))                             # [B, P2, A, K, C]
+            g = g.reshape(B, P2, A, K * C)                                             # [B, P2, A, K·C]
+        return g @ self.weight + self.bias                                             # [B, P2, A, Cout]
+
+
+class IntraSO3Conv(nn.Module):
+    """Group convolution over the rotation axis (spec §3): out[a] = Σ_k W_k · f[A_a·H_k], no spatial mixing."""
+
+    def __init__(self, c_in: int, c_out: int):
+        super().__init__()
+        self.register_buffer("table", torch.tensor(icosahedral.INTRA_NEIGHBOURS.reshape(-1), dtype=torch.int64))
+        self.weight = nn.Parameter(torch.empty(icosahedral.INTRA_NEIGHBOURS.shape[1] * c_in, c_out))  # [12·Cin, Cout]
+        self.bias = nn.Parameter(torch.full((c_out,), 1e-3))
+        nn.init.xavier_normal_(self.weight.view(12, c_in, c_out).permute(2, 1, 0), gain=nn.init.calculate_gain("relu"))
+
+    def forward(self, feats: torch.Tensor) -> torch.Tensor:
+        """feats [B, P, A, Cin] → [B, P, A, Cout]."""
+        B, P, _, C = feats.shape
+        g = feats.index_select(2, self.table)                     # [B, P, A·12, C]   (a-major, k-minor)
+        return g.reshape(B, P, A, 12 * C) @ self.weight + self.bias  # [B, P, A, Cout]
+
+
+class SeparableSO3Block(nn.Module):
+    """inter conv → IN → LeakyReLU → intra conv → IN → LeakyReLU, plus a 1×1 skip (IN, LeakyReLU); no act after sum."""
+
+    def __init__(self, spec: LayerSpec, kernel_points: int, lifting: bool = False):
+        super().__init__()
+        self.spec, self.lifting = spec, lifting
+        self.inter = InterSO3Conv(spec, kernel_points)
+        self.intra = IntraSO3Conv(spec.c_out, spec.c_out)
+        self.skip = None if lifting else nn.Linear(spec.c_in, spec.c_out)  # lifting input is constant: no skip
+
+    def forward(self, xyz: torch.Tensor, feats: torch.Tensor | None) -> tuple:
+        """xyz [B, P1, 3], feats [B, P1, A, Cin] | None → (xyz [B, P2, 3], feats [B, P2, A, Cout])."""
+        P2 = self.spec.points_out
+        x = F.leaky_relu(instance_norm(self.inter(xyz, feats)), LEAKY_SLOPE)
+        x = F.leaky_relu(instance_norm(self.intra(x)), LEAKY_SLOPE)
+        if self.skip is not None:
+            x = x + F.leaky_relu(instance_norm(self.skip(feats[:, :P2])), LEAKY_SLOPE)
+        return xyz[:, :P2], x
+
+
+def count_parameters(module: nn.Module) -> int:
+    return int(sum(p.numel() for p in module.parameters()))
