@@ -1,0 +1,91 @@
+"""Geometry helpers shared by the SDK, training and evaluation (numpy + scipy; no torch).
+
+Convention (one for the whole project):
+    Points are row arrays ``[..., N, 3]``; rotation matrices act on column vectors: ``x_cam = R @ x_obj + t``, i.e.
+    ``points_cam = points_obj @ R.T + t``. Quaternions ``(w, x, y, z)``, Hamilton product, unit norm, ``w >= 0`` when
+    stored. Camera frame: OpenCV (x right, y down, z forward), metres. Depth: uint16 millimetres, 0 = invalid.
+"""
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+__all__ = ["quaternion_to_matrix", "matrix_to_quaternion", "rotation_angle_deg", "axis_angle_deg", "backproject",
+           "farthest_point_order", "random_rotations"]
+
+
+def quaternion_to_matrix(q) -> np.ndarray:
+    """(w, x, y, z) [..., 4] → rotation [..., 3, 3] (normalised first)."""
+    q = np.asarray(q, dtype=np.float64)
+    return Rotation.from_quat(q[..., [1, 2, 3, 0]].reshape(-1, 4)).as_matrix().reshape(q.shape[:-1] + (3, 3))
+
+
+def matrix_to_quaternion(R) -> np.ndarray:
+    """Rotation [..., 3, 3] → (w, x, y, z) [..., 4] with w ≥ 0."""
+    R = np.asarray(R, dtype=np.float64)
+    q = Rotation.from_matrix(R.reshape(-1, 3, 3)).as_quat()[:, [3, 0, 1, 2]]
+    q *= np.where(q[:, :1] < 0, -1.0, 1.0)
+    return q.reshape(R.shape[:-2] + (4,))
+
+
+def rotation_angle_deg(R1, R2) -> np.ndarray:
+    """Geodesic angle between rotations [..., 3, 3], degrees: acos((tr(R1 R2ᵀ) − 1) / 2)."""
+    R1, R2 = np.asarray(R1, np.float64), np.asarray(R2, np.float64)
+    c = (np.einsum("...ij,...ij->...", R1, R2) - 1.0) / 2.0
+    return np.degrees(np.arccos(np.clip(c, -1.0, 1.0)))
+
+
+def axis_angle_deg(a, b, unsigned: bool = False) -> np.ndarray:
+    """Angle between direction vectors [..., 3], degrees; ``unsigned`` treats a and −a as the same axis."""
+    a, b = np.asarray(a, np.float64), np.asarray(b, np.float64)
+    c = np.sum(a * b, -1) / (np.linalg.norm(a, axis=-1) * np.linalg.norm(b, axis=-1) + 1e-12)
+    if unsigned:
+        c = np.abs(c)
+    return np.degrees(np.arccos(np.clip(c, -1.0, 1.0)))
+
+
+def backproject(depth_m: np.ndarray, K: np.ndarray, mask: np.ndarray | None = None) -> tuple:
+    """Pinhole back-projection of valid pixels (depth > 0, finite, inside ``mask``).
+
+    Args:
+        depth_m: [H, W] float depth in metres (0 or non-finite = invalid).
+        K: [3, 3] intrinsics (pixel centres at integer coordinates, OpenCV convention).
+        mask: optional [H, W] bool.
+    Returns:
+        (points [N, 3] float32 metres in the camera frame, pixels [N, 2] int (row, col)).
+    """
+    valid = np.isfinite(depth_m) & (depth_m > 0)
+    if mask is not None:
+        valid &= mask
+    rows, cols = np.nonzero(valid)                                          # [N], [N]
+    z = depth_m[rows, cols].astype(np.float64)
+    x = (cols - K[0, 2]) * z / K[0, 0]
+    y = (rows - K[1, 2]) * z / K[1, 1]
+    return np.stack([x, y, z], 1).astype(np.float32), np.stack([rows, cols], 1)
+
+
+def farthest_point_order(points: np.ndarray, n: int, start: int = 0) -> np.ndarray:
+    """Greedy farthest-point sampling: indices [n] of ``points`` [P, 3], nested (its first k are FPS(k)).
+
+    When ``n > P`` the order wraps around (indices repeat), so the model still receives N points.
+    """
+    points = np.asarray(points, dtype=np.float32)
+    P = len(points)
+    if P == 0:
+        raise ValueError("farthest_point_order: no points")
+    m = min(n, P)
+    idx = np.empty(m, dtype=np.int64)
+    idx[0] = start
+    d = np.sum((points - points[start]) ** 2, axis=1)
+    for i in range(1, m):
+        j = int(np.argmax(d))
+        idx[i] = j
+        np.minimum(d, np.sum((points - points[j]) ** 2, axis=1), out=d)
+    if n > P:
+        idx = np.resize(idx, n)
+    return idx
+
+
+def random_rotations(n: int, seed=None) -> np.ndarray:
+    """``n`` uniform random rotations [n, 3, 3] (scipy, seeded)."""
+    return Rotation.random(n, random_state=seed).as_matrix()

@@ -1,0 +1,70 @@
+"""Checkpoint format shared by training, calibration, evaluation and export.
+
+A checkpoint is ``torch.save`` of a dict:
+    format            1
+    model_config      ``ModelConfig.to_dict()`` (re-built with ``ModelConfig.from_dict``)
+    partial           bool
+    category          str
+    scale             float, metres per model unit
+    symmetry          "none" | "continuous:z" | ...
+    state_dict        model weights
+    step              int, optimisation steps done
+    optimizer         optimiser state (for --resume), optional
+    calibration       {"rotation": 3×3 list, "translation": 3 list, ...} or None (identity)
+    training          dict: data summary, steps, batch size, seconds/step, ...
+    metrics           dict: test metrics (filled by eval), may be empty
+"""
+from __future__ import annotations
+
+import os
+import pathlib
+
+import torch
+
+from equipose.presets import ModelConfig
+
+from .model import EquiPoseNet
+
+__all__ = ["save_checkpoint", "load_checkpoint", "model_from_checkpoint", "CHECKPOINT_FORMAT"]
+
+CHECKPOINT_FORMAT = 1
+
+
+def save_checkpoint(path, model: EquiPoseNet, *, category: str, scale: float, symmetry: str = "none",
+                    step: int = 0, optimizer=None, calibration: dict | None = None, training: dict | None = None,
+                    metrics: dict | None = None, extra: dict | None = None) -> pathlib.Path:
+    """Write atomically (temp file + rename), so an interrupted save never corrupts the previous checkpoint."""
+    path = pathlib.Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    state = {
+        "format": CHECKPOINT_FORMAT, "model_config": model.config.to_dict(), "partial": model.partial,
+        "category": category, "scale": float(scale), "symmetry": symmetry,
+        "state_dict": {k: v.detach().cpu() for k, v in model.state_dict().items()}, "step": int(step),
+        "optimizer": optimizer.state_dict() if optimizer is not None else None,
+        "calibration": calibration, "training": training or {}, "metrics": metrics or {},
+    }
+    if extra:
+        state.update(extra)
+    tmp = path.with_suffix(path.suffix + ".tmp")
+    torch.save(state, tmp)
+    os.replace(tmp, path)
+    return path
+
+
+def load_checkpoint(path) -> dict:
+    """Load a checkpoint dict (CPU tensors). Raises ``ValueError`` with a clear message on a foreign file."""
+    path = pathlib.Path(path)
+    if not path.is_file():
+        raise ValueError(f"checkpoint {path} does not exist")
+    ckpt = torch.load(path, map_location="cpu", weights_only=False)
+    if not isinstance(ckpt, dict) or ckpt.get("format") != CHECKPOINT_FORMAT:
+        raise ValueError(f"{path} is not an equipose checkpoint (format {CHECKPOINT_FORMAT})")
+    return ckpt
+
+
+def model_from_checkpoint(ckpt_or_path) -> tuple:
+    """(model in eval mode, checkpoint dict)."""
+    ckpt = load_checkpoint(ckpt_or_path) if not isinstance(ckpt_or_path, dict) else ckpt_or_path
+    model = EquiPoseNet(ModelConfig.from_dict(ckpt["model_config"]), partial=ckpt["partial"])
+    model.load_state_dict(ckpt["state_dict"])
+    return model.eval(), ckpt
