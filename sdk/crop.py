@@ -289,7 +289,8 @@ def nearest_depth_cluster(z: np.ndarray, gap_m: float = 0.03, rel_gap: float = 0
 
 def crop_points(depth, K, *, box=None, mask=None, depth_unit="mm", image_size=None, min_depth: float = 0.1,
                 max_depth: float = 10.0, max_points: int = 8192, reject_background: bool | None = None,
-                outlier_k: int = 8, outlier_std: float = 2.0, min_points: int = MIN_POINTS) -> CropResult:
+                outlier_k: int = 8, outlier_std: float = 2.0, min_points: int = MIN_POINTS,
+                check_plausible: bool = True) -> CropResult:
     """Depth frame + box/mask → cleaned object points in metres.
 
     Convention: ``depth`` [H, W] in ``depth_unit``; ``K`` [3, 3] for ``image_size`` (W, H) or the frame itself;
@@ -300,9 +301,9 @@ def crop_points(depth, K, *, box=None, mask=None, depth_unit="mm", image_size=No
     pixel-grid subsampling to at most ``max_points`` → background rejection (nearest depth cluster; default on for a
     box without a mask) → statistical outlier removal (k = ``outlier_k``, ``outlier_std``; 0 disables).
     Raises ``DepthDtypeError``, ``DepthUnitError``, ``EmptyDepthError``, ``IntrinsicsError``, ``RegionError``,
-    ``TooFewPointsError``.
+    ``TooFewPointsError``. ``check_plausible=False`` skips the unit plausibility check (already-validated frames).
     """
-    d = depth_to_metres(depth, depth_unit)                                      # [H, W] float32 m
+    d = depth_to_metres(depth, depth_unit, check_plausible=check_plausible)     # [H, W] float32 m
     H, W = d.shape
     Kf = check_intrinsics(K, (H, W), image_size)                                # [3, 3]
     region = np.ones((H, W), dtype=bool)                                        # [H, W]

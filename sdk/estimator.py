@@ -1,0 +1,261 @@
+"""``PoseEstimator``: an equipose ONNX model + the SDK pipeline (crop → FPS → ORT → selection → calibration).
+
+Convention:
+    Inputs are depth frames (see ``equipose.crop``) or metric points [P, 3] in the OpenCV camera frame. The model is
+    run on ``(p − centroid) / scale`` (model units, FPS-ordered to its N points); its hypotheses are calibrated into
+    the category frame (metadata δR, δt), the best one is selected, and translations are mapped back to metres:
+    ``t_m = t_model · scale + centroid``. Results are ``PoseResult`` (rotation category → camera, translation metres).
+    Timings are milliseconds (``time.perf_counter``).
+"""
+from __future__ import annotations
+
+import pathlib
+import time
+
+import numpy as np
+
+from . import crop as _crop
+from .errors import ConfigError, EquiposeError, InvalidPointsError, ModelFormatError, RegionError
+from .hypotheses import apply_calibration, canonicalise_rotation, parse_symmetry, select_hypothesis
+from .metadata import decode_metadata
+from .result import FrameError, PoseResult
+
+__all__ = ["PoseEstimator", "INPUT_NAME", "OUTPUT_NAMES"]
+
+INPUT_NAME = "points"
+OUTPUT_NAMES = ("canonical_shape", "hypothesis_rotations", "hypothesis_translations", "hypothesis_scores")
+
+
+def _ms(t0: float) -> float:
+    return (time.perf_counter() - t0) * 1e3
+
+
+class PoseEstimator:
+    """Category-level 6D pose from depth with an equipose ONNX model (CPU, onnxruntime).
+
+    Args:
+        model_path: an ``.onnx`` file written by ``equipose export``.
+        threads: onnxruntime intra-op threads (None = onnxruntime's default, the physical core count).
+        crop_options: defaults for ``equipose.crop.crop_points`` (e.g. ``{"max_depth": 2.0}``).
+        top_k: hypotheses listed in each result.
+
+    Raises ``ModelFormatError`` (missing file, not ONNX, not an equipose model, wrong inputs/outputs),
+    ``ModelVersionError`` (metadata format mismatch), ``MetadataError`` (missing/malformed keys).
+    """
+
+    def __init__(self, model_path, threads: int | None = None, *, crop_options: dict | None = None, top_k: int = 5):
+        import onnxruntime as ort
+
+        path = pathlib.Path(model_path)
+        if not path.is_file():
+            raise ModelFormatError(f"model file {str(path)!r} does not exist; pass the path of an equipose .onnx model "
+                                   "(the demo model is equipose.models.demo_model_path())")
+        if threads is not None and (not isinstance(threads, int) or threads < 0):
+            raise ConfigError(f"threads must be None or a non-negative int, got {threads!r}")
+        opts = ort.SessionOptions()
+        if threads:
+            opts.intra_op_num_threads = int(threads)
+            opts.inter_op_num_threads = 1
+        opts.log_severity_level = 3
+        try:
+            self.session = ort.InferenceSession(str(path), sess_options=opts, providers=["CPUExecutionProvider"])
+        except Exception as e:  # onnxruntime raises its own (pybind) exception types for unreadable files
+            raise ModelFormatError(f"{path.name} is not a loadable ONNX model ({type(e).__name__}: "
+                                   f"{str(e).splitlines()[0][:200]}); pass an .onnx file written by 'equipose export'") from None
+        props = dict(self.session.get_modelmeta().custom_metadata_map)
+        self.metadata = decode_metadata(props, source=path.name)
+        self.path = path
+        self.category = str(self.metadata["category"])
+        self.num_points = int(self.metadata["num_points"])
+        self.num_canonical_points = int(self.metadata["num_canonical_points"])
+        self.scale = float(self.metadata["scale"])
+        self.symmetry = str(self.metadata["symmetry"])
+        parse_symmetry(self.symmetry)                                           # unsupported spec → MetadataError
+        self.random_init = bool(self.metadata["random_init"])
+        self.calibration_rotation = np.asarray(self.metadata["calibration_rotation"], np.float64)     # [3, 3]
+        self.calibration_translation = np.asarray(self.metadata["calibration_translation"], np.float64)  # [3]
+        self.crop_options = dict(crop_options or {})
+        self.top_k = int(top_k)
+        self._check_io(path.name)
+
+    # ------------------------------------------------------------------------------------------------------------------
+    def _check_io(self, name: str):
+        ins = self.session.get_inputs()
+        outs = {o.name: o for o in self.session.get_outputs()}
+        if len(ins) != 1 or ins[0].name != INPUT_NAME:
+            raise ModelFormatError(f"{name}: expected one input named {INPUT_NAME!r}, got {[i.name for i in ins]}; "
+                                   "not an equipose model")
+        missing = [o for o in OUTPUT_NAMES if o not in outs]
+        if missing:
+            raise ModelFormatError(f"{name}: outputs {missing} missing (has {sorted(outs)}); not an equipose model")
+        shape = ins[0].shape                                                    # [batch, N, 3]
+        if len(shape) != 3 or shape[2] != 3 or (isinstance(shape[1], int) and shape[1] != self.num_points):
+            raise ModelFormatError(f"{name}: input shape {shape} does not match [batch, {self.num_points}, 3] "
+                                   "from its metadata; re-export the model")
+        self.static_batch = shape[0] if isinstance(shape[0], int) else None
+
+    def __repr__(self):
+        return (f"PoseEstimator({self.path.name!r}, category={self.category!r}, N={self.num_points}, "
+                f"scale={self.scale} m/unit, symmetry={self.symmetry!r}, random_init={self.random_init})")
+
+    @property
+    def info(self) -> dict:
+        """Model facts from the metadata (JSON-ready)."""
+        keys = ("category", "preset", "num_points", "num_canonical_points", "scale", "partial", "symmetry",
+                "random_init", "equipose_version", "training", "metrics")
+        return {k: self.metadata[k] for k in keys}
+
+    # ------------------------------------------------------------------------------------------------------------------
+    def run_model(self, model_points: np.ndarray) -> dict:
+        """Raw ONNX run. Convention: ``model_points`` [B, N, 3] float32 model units → dict of the 4 outputs."""
+        x = np.ascontiguousarray(model_points, dtype=np.float32)
+        if x.ndim != 3 or x.shape[1:] != (self.num_points, 3):
+            raise InvalidPointsError(f"model input must be [B, {self.num_points}, 3], got {x.shape}")
+        if not np.all(np.isfinite(x)):
+            raise InvalidPointsError("model input contains NaN/Inf")
+        if self.static_batch is not None and x.shape[0] != self.static_batch:   # fixed-batch export: loop
+            parts = [self.run_model(x[i:i + 1]) for i in range(x.shape[0])]
+            return {k: np.concatenate([p[k] for p in parts]) for k in OUTPUT_NAMES}
+        outs = self.session.run(list(OUTPUT_NAMES), {INPUT_NAME: x})
+        return dict(zip(OUTPUT_NAMES, outs))
+
+    def _finish(self, outputs: dict, b: int, prep: "_crop.PreparedPoints", *, prefer: int | None = None,
+                prefer_margin: float = 0.0) -> tuple:
+        """Outputs of batch item ``b`` → (PoseResult without timings, selection ms)."""
+        t0 = time.perf_counter()
+        R_all = outputs["hypothesis_rotations"][b]                              # [60, 3, 3]
+        t_all = outputs["hypothesis_translations"][b]                           # [60, 3] model units
+        s_all = outputs["hypothesis_scores"][b]                                 # [60]
+        canon = np.asarray(outputs["canonical_shape"][b], np.float64)           # [M, 3] learned frame, model units
+        dR, dt = self.calibration_rotation, self.calibration_translation
+        R_cat, t_cat = apply_calibration(R_all, t_all, dR, dt)                  # [60, 3, 3], [60, 3]
+        sel = select_hypothesis(R_cat, t_cat, s_all, symmetry=self.symmetry, top_k=self.top_k, prefer=prefer,
+                                prefer_margin=prefer_margin)
+        R = R_cat[sel.index]                                                    # [3, 3]
+        t_m = prep.to_metres(t_cat[sel.index])                                  # [3] metres
+        canon_obj = (canon @ dR.T + dt) * self.scale                            # [M, 3] category frame, metres
+        canon_cam = canon_obj @ R.T + t_m                                       # [M, 3] camera frame, metres
+        kind, axis, _ = parse_symmetry(self.symmetry)
+        res = PoseResult(
+            rotation=R, translation=t_m, score=sel.score, confidence=sel.confidence, ambiguous=sel.ambiguous,
+            canonical_shape=canon_cam, canonical_shape_object=canon_obj, hypothesis_index=sel.index, top_k=sel.top_k,
+            symmetry=self.symmetry, symmetry_axis=None if kind == "none" else R[:, axis].copy(),
+            rotation_canonical=canonicalise_rotation(R, self.symmetry), category=self.category,
+            random_init=self.random_init)
+        return res, _ms(t0)
+
+    # ------------------------------------------------------------------------------------------------------------------
+    def predict_points(self, points) -> PoseResult:
+        """Pose of one object from its points.
+
+        Convention: ``points`` [P, 3] metres, camera frame (P ≥ 64; NaN/Inf rejected). Returns ``PoseResult``.
+        Raises ``InvalidPointsError``, ``TooFewPointsError``.
+        """
+        return self.predict_points_batch([points])[0]
+
+    def predict_points_batch(self, point_sets) -> list:
+        """Poses of several objects in one onnxruntime run. Convention: a list of [P_i, 3] metres → list of results."""
+        if isinstance(point_sets, np.ndarray) and point_sets.ndim == 2:
+            raise InvalidPointsError("predict_points_batch takes a list of [P, 3] arrays; use predict_points for one")
+        t0 = time.perf_counter()
+        preps = [_crop.prepare_points(p, self.num_points, self.scale) for p in point_sets]
+        if not preps:
+            return []
+        fps_ms = _ms(t0) / len(preps)
+        return self._infer(preps, [None] * len(preps), [fps_ms] * len(preps), [0.0] * len(preps),
+                           [len(_crop.check_points(p)) for p in point_sets])
+
+    def _infer(self, preps, crops, fps_ms, crop_ms, counts, prefer=None, prefer_margin=0.0) -> list:
+        t0 = time.perf_counter()
+        x = np.stack([p.model_points for p in preps])                           # [B, N, 3]
+        outputs = self.run_model(x)
+        inf_ms = _ms(t0)
+        results = []
+        for b, prep in enumerate(preps):
+            pref = None if prefer is None else prefer[b]
+            res, sel_ms = self._finish(outputs, b, prep, prefer=pref, prefer_margin=prefer_margin)
+            res.num_points = int(counts[b])
+            res.crop = {} if crops[b] is None else dict(crops[b].diagnostics)
+            res.timings = {"crop": crop_ms[b], "fps": fps_ms[b], "inference": inf_ms, "selection": sel_ms,
+                           "total": crop_ms[b] + fps_ms[b] + inf_ms + sel_ms, "batch": len(preps)}
+            results.append(res)
+        return results
+
+    def predict(self, depth, K, box=None, mask=None, depth_unit="mm", *, image_size=None, **crop_options) -> PoseResult:
+        """Pose of one object in a depth frame.
+
+        Convention: ``depth`` [H, W] (uint16 mm by default; declare other units), ``K`` [3, 3] (for ``image_size``
+        (W, H) if given, else for the frame), ``box`` (x, y, w, h) pixels and/or ``mask`` [H, W] bool.
+        Returns ``PoseResult`` with ``timings`` (crop, fps, inference, selection, total ms).
+        Raises the typed errors of ``equipose.crop`` (depth, intrinsics, region, too few points).
+        """
+        regions = [{"box": box, "mask": mask}]
+        return self.predict_batch(depth, K, regions=regions, depth_unit=depth_unit, image_size=image_size,
+                                  **crop_options)[0]
+
+    def crop(self, depth, K, box=None, mask=None, depth_unit="mm", *, image_size=None, **crop_options):
+        """``equipose.crop.crop_points`` with this estimator's crop defaults. Returns ``CropResult``."""
+        opts = {**self.crop_options, **crop_options}
+        return _crop.crop_points(depth, K, box=box, mask=mask, depth_unit=depth_unit, image_size=image_size, **opts)
+
+    def predict_batch(self, depth, K, boxes=None, masks=None, depth_unit="mm", *, regions=None, image_size=None,
+                      return_errors: bool = False, prefer=None, prefer_margin: float = 0.0, **crop_options) -> list:
+        """Poses of several objects in one frame, with a single onnxruntime run of batch B.
+
+        Convention: ``boxes`` list of (x, y, w, h) and/or ``masks`` list of [H, W] bool (same length if both), or
+        ``regions`` list of ``{"box": ..., "mask": ...}``. Returns a list of ``PoseResult`` in region order. With
+        ``return_errors=True`` an object whose crop fails yields a ``FrameError`` (object_id = its position) instead of
+        raising; frame-level errors (depth, intrinsics) still raise.
+        """
+        if regions is None:
+            boxes = list(boxes) if boxes is not None else None
+            masks = list(masks) if masks is not None else None
+            if boxes is not None and masks is not None and len(boxes) != len(masks):
+                raise RegionError(f"{len(boxes)} boxes but {len(masks)} masks; pass one of each per object")
+            n = len(boxes) if boxes is not None else (len(masks) if masks is not None else 1)
+            regions = [{"box": None if boxes is None else boxes[i], "mask": None if masks is None else masks[i]}
+                       for i in range(n)]
+        if not regions:
+            return []
+        t0 = time.perf_counter()
+        depth_m = _crop.depth_to_metres(depth, depth_unit)                      # [H, W] m — validates once per frame
+        Kf = _crop.check_intrinsics(K, depth_m.shape, image_size)               # [3, 3]
+        shared_ms = _ms(t0) / len(regions)
+        preps, crops, fps_ms, crop_ms, counts, slots, out, prefs = [], [], [], [], [], [], [None] * len(regions), []
+        for i, reg in enumerate(regions):
+            try:
+                t1 = time.perf_counter()
+                c = self.crop(depth_m, Kf, box=reg.get("box"), mask=reg.get("mask"), depth_unit="m",
+                              check_plausible=False, **crop_options)
+                t2 = time.perf_counter()
+                prep = _crop.prepare_points(c.points, self.num_points, self.scale)
+                t3 = time.perf_counter()
+            except EquiposeError as e:
+                if not return_errors:
+                    raise
+                out[i] = FrameError.from_exception(-1, e, object_id=i)
+                continue
+            preps.append(prep); crops.append(c); counts.append(len(c.points)); slots.append(i)
+            crop_ms.append(shared_ms + (t2 - t1) * 1e3); fps_ms.append((t3 - t2) * 1e3)
+            prefs.append(None if prefer is None else prefer[i])
+        if preps:
+            results = self._infer(preps, crops, fps_ms, crop_ms, counts, prefer=prefs, prefer_margin=prefer_margin)
+            for i, r in zip(slots, results):
+                out[i] = r
+        return out
+
+    def predict_auto(self, depth, K, depth_unit="mm", *, image_size=None, return_errors: bool = False,
+                     auto_options: dict | None = None, **crop_options) -> list:
+        """Tabletop auto crop (``equipose.crop.auto_masks``) then ``predict_batch`` on every mask found."""
+        masks = _crop.auto_masks(depth, K, depth_unit=depth_unit, image_size=image_size, **(auto_options or {}))
+        if not masks:
+            return []
+        return self.predict_batch(depth, K, masks=masks, depth_unit=depth_unit, image_size=image_size,
+                                  return_errors=return_errors, **crop_options)
+
+    # ------------------------------------------------------------------------------------------------------------------
+    def track(self, source, **kwargs):
+        """Stream poses over a frame source; see ``equipose.tracking.track`` for the options. Yields ``TrackRecord``."""
+        from .tracking import track
+        return track(self, source, **kwargs)
+

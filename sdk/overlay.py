@@ -1,0 +1,95 @@
+"""OpenCV drawing of poses: axes, oriented 3D boxes, depth colourisation.
+
+Convention: images are BGR uint8 [H, W, 3]; ``K`` [3, 3] is the intrinsics of the image drawn on; 3D points are
+metres in the OpenCV camera frame. Nothing is drawn for points behind the camera (z ≤ 1 cm).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["to_bgr", "depth_colormap", "project", "draw_pose", "draw_mask"]
+
+_BOX_EDGES = [(0, 1), (0, 2), (1, 3), (2, 3), (4, 5), (4, 6), (5, 7), (6, 7), (0, 4), (1, 5), (2, 6), (3, 7)]
+
+
+def depth_colormap(depth, lo: float | None = None, hi: float | None = None) -> np.ndarray:
+    """[H, W] depth (any unit) → [H, W, 3] BGR uint8 (turbo colour map, invalid = black)."""
+    import cv2
+    d = np.asarray(depth, np.float64)
+    valid = np.isfinite(d) & (d > 0)
+    out = np.zeros(d.shape + (3,), np.uint8)
+    if not valid.any():
+        return out
+    lo = np.percentile(d[valid], 2) if lo is None else lo
+    hi = np.percentile(d[valid], 98) if hi is None else hi
+    u8 = np.clip((d - lo) / max(hi - lo, 1e-9) * 255, 0, 255).astype(np.uint8)
+    out = cv2.applyColorMap(u8, cv2.COLORMAP_TURBO)
+    out[~valid] = 0
+    return out
+
+
+def to_bgr(image) -> np.ndarray:
+    """Any image-like array → a fresh BGR uint8 [H, W, 3] (grey replicated; 16-bit/float depth colourised)."""
+    img = np.asarray(image)
+    if img.ndim == 2 or (img.ndim == 3 and img.shape[2] == 1):
+        img = img.reshape(img.shape[:2])
+        if img.dtype != np.uint8:
+            return depth_colormap(img)
+        return np.repeat(img[:, :, None], 3, axis=2)
+    if img.ndim == 3 and img.shape[2] == 4:
+        img = img[:, :, :3]
+    if img.ndim != 3 or img.shape[2] != 3:
+        raise ValueError(f"image must be [H, W], [H, W, 3] or [H, W, 4], got {img.shape}")
+    if img.dtype != np.uint8:
+        img = np.clip(img, 0, 255).astype(np.uint8)
+    return np.ascontiguousarray(img.copy())
+
+
+def project(points, K) -> tuple:
+    """[P, 3] metres (camera frame) → ([P, 2] float pixel (u, v), [P] bool in front of the camera)."""
+    p = np.asarray(points, np.float64).reshape(-1, 3)
+    K = np.asarray(K, np.float64)
+    front = p[:, 2] > 0.01
+    z = np.where(front, p[:, 2], 1.0)
+    uv = np.stack([K[0, 0] * p[:, 0] / z + K[0, 1] * p[:, 1] / z + K[0, 2], K[1, 1] * p[:, 1] / z + K[1, 2]], 1)
+    return uv, front
+
+
+def draw_mask(image, mask, color=(255, 0, 255), alpha: float = 0.35) -> np.ndarray:
+    """Blend a [H, W] bool mask onto a BGR image (returns a new image)."""
+    img = to_bgr(image)
+    m = np.asarray(mask, bool)
+    img[m] = (img[m] * (1 - alpha) + np.asarray(color) * alpha).astype(np.uint8)
+    return img
+
+
+def draw_pose(image, K, result, *, axis_length: float | None = None, color=(0, 255, 0), thickness: int = 2,
+              label: bool = True) -> np.ndarray:
+    """Axes (x red, y green, z blue) + oriented 3D box of a ``PoseResult`` on a copy of ``image``."""
+    import cv2
+    img = to_bgr(image)
+    R, t = np.asarray(result.rotation), np.asarray(result.translation)
+    corners = result.box_corners()                                              # [8, 3]
+    uv, front = project(corners, K)
+    ipt = lambda q: (int(round(q[0])), int(round(q[1])))                      # noqa: E731
+    for a, b in _BOX_EDGES:
+        if front[a] and front[b]:
+            cv2.line(img, ipt(uv[a]), ipt(uv[b]), color, thickness, cv2.LINE_AA)
+    if axis_length is None:
+        mn, mx = result.extent()
+        axis_length = 0.6 * float(np.max(mx - mn)) if np.all(np.isfinite(mx - mn)) else 0.05
+        axis_length = max(axis_length, 0.01)
+    ends = t[None] + axis_length * R.T                                          # [3, 3] rows = axis tips
+    uv_axes, f_axes = project(np.vstack([t[None], ends]), K)
+    if f_axes[0]:
+        for k, col in enumerate([(0, 0, 255), (0, 255, 0), (255, 0, 0)]):
+            if f_axes[k + 1]:
+                cv2.line(img, ipt(uv_axes[0]), ipt(uv_axes[k + 1]), col, thickness + 1, cv2.LINE_AA)
+    if label and f_axes[0]:
+        txt = f"{result.category or 'obj'} c={result.confidence:.2f}" + (" ?flip" if result.ambiguous else "")
+        if result.object_id is not None:
+            txt = f"#{result.object_id} " + txt
+        org = ipt(uv_axes[0] + np.array([6, -6]))
+        cv2.putText(img, txt, org, cv2.FONT_HERSHEY_SIMPLEX, 0.45, (0, 0, 0), 3, cv2.LINE_AA)
+        cv2.putText(img, txt, org, cv2.FONT_HERSHEY_SIMPLEX, 0.45, (255, 255, 255), 1, cv2.LINE_AA)
+    return img
