@@ -1,0 +1,40 @@
+"""``equipose train``: self-supervised training on complete ModelNet clouds or rendered partial depth.
+
+Convention:
+    Options come from defaults < ``--config F`` (JSON, ``TrainConfig`` field names) < explicit flags.
+    Multi-process / multi-GPU: ``torchrun --standalone --nproc_per_node K -m equipose.cli train ...``
+    (gloo on CPU, nccl on CUDA; ``--batch-size`` is per process).
+"""
+from __future__ import annotations
+
+from .trainer import TrainConfig, train
+
+
+def add_arguments(p) -> None:
+    p.add_argument("--category", help="ModelNet40 category (default airplane)")
+    p.add_argument("--mode", choices=["complete", "partial"], help="complete clouds or rendered partial depth")
+    p.add_argument("--preset", help="model preset: tiny | small | paper (default small)")
+    p.add_argument("--steps", type=int, help="optimisation steps in total (a resumed run continues to this)")
+    p.add_argument("--out", help="output folder (latest.pt, log.jsonl, config.json)")
+    p.add_argument("--config", help="JSON file of TrainConfig options")
+    p.add_argument("--resume", action="store_true", help="continue from OUT/latest.pt (weights, optimiser, step)")
+    p.add_argument("--batch-size", dest="batch_size", type=int, help="samples per step and process (default 8)")
+    p.add_argument("--lr", type=float, help="Adam learning rate (default 5e-4, as the paper)")
+    p.add_argument("--data-root", dest="data_root", help="shared data folder (default $EQUIPOSE_DATA or ../shared/data)")
+    p.add_argument("--val-every", dest="val_every", type=int, help="steps between validations (default 250)")
+    p.add_argument("--ckpt-every", dest="ckpt_every", type=int, help="steps between checkpoints (default 100)")
+    p.add_argument("--val-size", dest="val_size", type=int, help="validation subset size (default 50)")
+    p.add_argument("--train-limit", dest="train_limit", type=int, help="use only the first K training instances")
+    p.add_argument("--views", type=int, help="partial: rendered views per training instance (default 10)")
+    p.add_argument("--cache-dir", dest="cache_dir", help="partial: render cache folder (default data_cache/)")
+    p.add_argument("--threads", type=int, help="torch CPU threads (default 1)")
+    p.add_argument("--seed", type=int, help="random seed (default 0)")
+    p.add_argument("--device", help="cpu | cuda | cuda:K (default: cuda when present)")
+
+
+def run(args) -> int:
+    opts = {k: v for k, v in vars(args).items() if k not in ("config", "resume")}
+    cfg = TrainConfig.from_sources(args.config, **opts)
+    path = train(cfg, resume=args.resume)
+    print(f"checkpoint: {path}")
+    return 0

@@ -1,0 +1,222 @@
+"""Self-supervised training loop (min-of-60 chamfer, Adam 5e-4), checkpoints + resume, validation, DDP.
+
+Convention:
+    Batches are [B, N, 3] float32 in model units (metres / scale), FPS-ordered; the loss never sees a pose label.
+    Ground truth is used only to *report* the validation median rotation error (after a quick calibration on
+    category-frame training inputs, spec §6); it never chooses a checkpoint (``latest.pt`` is always the newest).
+    Output folder: ``latest.pt`` (the checkpoint format of ``checkpoint.py``), ``log.jsonl`` (one line per
+    validation), ``config.json``.
+    Distributed: ``torchrun --nproc_per_node K -m equipose.cli train ...`` (gloo on CPU, nccl on CUDA); every rank
+    draws its own batches (seed + rank), gradients are averaged by DDP, rank 0 validates and saves.
+"""
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import os
+import pathlib
+import time
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+from tqdm import tqdm
+
+from equipose.errors import ConfigError
+
+from .checkpoint import load_checkpoint, save_checkpoint
+from .data import MODELNET_SCALE, category_symmetry, collate, default_data_root, make_dataset
+from .inference import calibrate_model, predict_torch
+from .calibration import apply_calibration
+from .metrics import rotation_errors
+from .model import EquiPoseNet, chamfer_min_of_60_loss
+
+__all__ = ["TrainConfig", "train"]
+
+
+@dataclass
+class TrainConfig:
+    """Every training option (the ``--config`` JSON uses these names)."""
+    category: str = "airplane"
+    mode: str = "complete"                # complete | partial
+    preset: str = "small"
+    steps: int = 1000
+    out: str = "runs/train"
+    batch_size: int = 8
+    lr: float = 5e-4
+    lr_gamma: float = 0.9995              # ExponentialLR per epoch (spec §5)
+    val_every: int = 250
+    ckpt_every: int = 100
+    val_size: int = 50                    # fixed validation subset (test split, seeded rotations)
+    calib_size: int = 64                  # category-frame training inputs for the validation-time calibration
+    seed: int = 0
+    threads: int = 1
+    data_root: str = ""
+    train_limit: int | None = None        # first K training instances only (tests, quick runs)
+    views: int = 10                       # partial: rendered views per training instance
+    test_views: int = 5                   # partial: rendered views per test instance
+    cache_dir: str = ""
+    device: str = ""                      # "" = cuda when present, else cpu
+
+    @classmethod
+    def from_sources(cls, config_file=None, **overrides) -> "TrainConfig":
+        """Defaults < JSON config file < explicit overrides (``None`` values are ignored)."""
+        names = {f.name for f in dataclasses.fields(cls)}
+        values = {}
+        if config_file:
+            with open(config_file) as f:
+                loaded = json.load(f)
+            unknown = set(loaded) - names
+            if unknown:
+                raise ConfigError(f"unknown training options in {config_file}: {sorted(unknown)}")
+            values.update(loaded)
+        values.update({k: v for k, v in overrides.items() if v is not None and k in names})
+        cfg = cls(**values)
+        if cfg.mode not in ("complete", "partial"):
+            raise ConfigError(f"mode must be complete or partial, got {cfg.mode!r}")
+        if cfg.batch_size < 1 or cfg.steps < 0:
+            raise ConfigError("batch_size must be ≥ 1 and steps ≥ 0")
+        return cfg
+
+
+def _dist_info() -> tuple:
+    world = int(os.environ.get("WORLD_SIZE", "1"))
+    rank = int(os.environ.get("RANK", "0"))
+    local = int(os.environ.get("LOCAL_RANK", "0"))
+    return world, rank, local
+
+
+def _render_opts(cfg: TrainConfig, split: str) -> dict:
+    return {"views": cfg.views if split == "train" else cfg.test_views}
+
+
+def _datasets(cfg: TrainConfig, num_points: int) -> tuple:
+    root = cfg.data_root or str(default_data_root())
+    cache = cfg.cache_dir or None
+    train_ds = make_dataset(root, cfg.category, cfg.mode, "train", num_points, train=True, limit=cfg.train_limit,
+                            cache_dir=cache, render_opts=_render_opts(cfg, "train"))
+    val_ds = make_dataset(root, cfg.category, cfg.mode, "test", num_points, train=False,
+                          limit=None if cfg.train_limit is None else max(2, cfg.val_size // 5),
+                          cache_dir=cache, render_opts=_render_opts(cfg, "test"))
+    return train_ds, val_ds
+
+
+def validation_inputs(train_ds, val_ds, cfg: TrainConfig) -> dict:
+    """Fixed subsets: category-frame training inputs (calibration) and test samples (median rotation error)."""
+    rng = np.random.default_rng(12345)
+    ci = rng.choice(len(train_ds), size=min(cfg.calib_size, len(train_ds)), replace=False)
+    calib = np.stack([train_ds.sample(int(i), np.random.default_rng(int(i)))["canonical"] for i in ci])
+    vi = np.linspace(0, len(val_ds) - 1, min(cfg.val_size, len(val_ds))).round().astype(int)
+    val = collate([val_ds[int(i)] for i in vi])
+    return {"calib": calib, "val": val}
+
+
+def validate(model, inputs: dict, symmetry: str, device) -> dict:
+    """Quick calibration + median rotation error on the fixed validation subset (reporting only)."""
+    cal = calibrate_model(model, inputs["calib"], symmetry=symmetry, unsigned_axis=False, device=device)
+    R, t, _ = predict_torch(model, inputs["val"]["points"], device=device)
+    Rh, _ = apply_calibration(R, t, cal)
+    err = rotation_errors(Rh, inputs["val"]["rotation"], symmetry)
+    return {"val_rot_median_deg": float(np.median(err)), "val_rot_mean_deg": float(err.mean()),
+            "val_acc_5deg": float(np.mean(err <= 5)), "calib_inlier_fraction": cal["inlier_fraction"],
+            "calibration": cal}
+
+
+def train(cfg: TrainConfig, resume: bool = False, log=print) -> pathlib.Path:
+    """Run training; returns the path of ``latest.pt``."""
+    world, rank, local = _dist_info()
+    torch.set_num_threads(max(1, cfg.threads))
+    if cfg.device:
+        device = torch.device(cfg.device)
+    else:
+        device = torch.device(f"cuda:{local}" if torch.cuda.is_available() else "cpu")
+    if world > 1 and not torch.distributed.is_initialized():
+        torch.distributed.init_process_group("nccl" if device.type == "cuda" else "gloo")
+    out = pathlib.Path(cfg.out)
+    ckpt_path = out / "latest.pt"
+    torch.manual_seed(cfg.seed)
+
+    model = EquiPoseNet(cfg.preset, partial=(cfg.mode == "partial"))
+    symmetry = category_symmetry(cfg.category)
+    train_ds, val_ds = _datasets(cfg, model.num_points)
+    scale = float(getattr(train_ds, "scale", MODELNET_SCALE))
+    opt = torch.optim.Adam(model.parameters(), lr=cfg.lr)
+    step, history, seconds = 0, [], []
+    calibration = None
+    if resume and ckpt_path.is_file():
+        ck = load_checkpoint(ckpt_path)
+        model.load_state_dict(ck["state_dict"])
+        if ck.get("optimizer"):
+            opt.load_state_dict(ck["optimizer"])
+        step = int(ck["step"])
+        history = ck.get("training", {}).get("history", [])
+        seconds = ck.get("training", {}).get("step_seconds", [])
+        calibration = ck.get("calibration")
+        if rank == 0:
+            log(f"resumed from {ckpt_path} at step {step}")
+    elif resume and rank == 0:
+        log(f"no checkpoint at {ckpt_path}; starting from scratch")
+    model.to(device)
+    net = model
+    if world > 1:
+        net = torch.nn.parallel.DistributedDataParallel(model, device_ids=[local] if device.type == "cuda" else None)
+
+    if rank == 0:
+        out.mkdir(parents=True, exist_ok=True)
+        (out / "config.json").write_text(json.dumps(dataclasses.asdict(cfg), indent=1))
+        val_inputs = validation_inputs(train_ds, val_ds, cfg)
+    rng = np.random.default_rng([cfg.seed, rank, step])
+    per_epoch = max(1, math.ceil(len(train_ds) / (cfg.batch_size * world)))
+
+    def summary():
+        return {"category": cfg.category, "mode": cfg.mode, "preset": cfg.preset, "batch_size": cfg.batch_size,
+                "world_size": world, "train_samples": len(train_ds), "lr": cfg.lr, "device": str(device),
+                "threads": cfg.threads, "history": history, "step_seconds": seconds[-1000:],
+                "seconds_per_step_median": float(np.median(seconds[3:] or seconds)) if seconds else None,
+                "data_root": cfg.data_root or str(default_data_root())}
+
+    def save():
+        save_checkpoint(ckpt_path, model, category=cfg.category, scale=scale, symmetry=symmetry, step=step,
+                        optimizer=opt, calibration=calibration, training=summary())
+
+    bar = tqdm(total=cfg.steps, initial=min(step, cfg.steps), disable=rank != 0, desc=f"train {cfg.category}/{cfg.mode}",
+               dynamic_ncols=True)
+    net.train()
+    while step < cfg.steps:
+        lr = cfg.lr * cfg.lr_gamma ** (step // per_epoch)
+        for g in opt.param_groups:
+            g["lr"] = lr
+        t0 = time.perf_counter()
+        idx = rng.integers(0, len(train_ds), cfg.batch_size)
+        batch = collate([train_ds.sample(int(i), rng) for i in idx])
+        x = torch.from_numpy(batch["points"]).to(device)
+        loss = chamfer_min_of_60_loss(net(x, return_aux=True))
+        opt.zero_grad(set_to_none=True)
+        loss.backward()
+        opt.step()
+        step += 1
+        seconds.append(time.perf_counter() - t0)
+        bar.update(1)
+        bar.set_postfix(loss=f"{loss.item():.5f}", s_step=f"{seconds[-1]:.2f}")
+        last = step == cfg.steps
+        if rank == 0 and (step % cfg.val_every == 0 or last):
+            v = validate(model, val_inputs, symmetry, device)
+            calibration = v.pop("calibration")
+            rec = {"step": step, "loss": float(loss.item()), "lr": lr, **v}
+            history.append(rec)
+            with open(out / "log.jsonl", "a") as f:
+                f.write(json.dumps(rec) + "\n")
+            bar.write(f"step {step}: loss {rec['loss']:.5f}  val median rot {v['val_rot_median_deg']:.1f}°  "
+                      f"5° {v['val_acc_5deg']:.2f}  calib inliers {v['calib_inlier_fraction']:.2f}")
+        if rank == 0 and (step % cfg.ckpt_every == 0 or last):
+            save()
+        if world > 1 and (last or step % cfg.val_every == 0):
+            torch.distributed.barrier()
+    bar.close()
+    if rank == 0 and not ckpt_path.is_file():
+        save()
+    if world > 1:
+        torch.distributed.barrier()
+        torch.distributed.destroy_process_group()
+    return ckpt_path
