@@ -109,6 +109,13 @@ class ModelNetComplete:
     def __getitem__(self, i: int) -> dict:
         return self.sample(i, self.rng if self.train else None)
 
+    def raw(self, i: int) -> dict:
+        """Evaluation view of sample ``i`` in metres (file units): the full rotated cloud, GT pose, bbox diagonal."""
+        inst = i // self.reps
+        R = self.rotations[i]
+        return {"points_m": (self.clouds[inst].astype(np.float64) @ R.T), "rotation": R, "translation_m": np.zeros(3),
+                "diag_m": float(self.diags[inst] * self.scale), "instance": inst}
+
 
 class RenderedPartial:
     """Rendered partial-depth samples from a cache written by ``equipose.train.render.render_dataset``.
@@ -148,6 +155,12 @@ class RenderedPartial:
 
     def __getitem__(self, i: int) -> dict:
         return self.sample(i, self.rng if self.train else None)
+
+    def raw(self, i: int) -> dict:
+        """Evaluation view of sample ``i`` in metres: the cropped points as the SDK produced them, GT pose, diagonal."""
+        return {"points_m": self.points_all[self.offsets[i]:self.offsets[i + 1]].astype(np.float64),
+                "rotation": self.R[i], "translation_m": self.t[i].astype(np.float64), "diag_m": float(self.diag_m[i]),
+                "instance": int(self.instance[i])}
 
 
 def make_dataset(root, category: str, mode: str, split: str, num_points: int, train: bool,

@@ -174,7 +174,7 @@ def train(cfg: TrainConfig, resume: bool = False, log=print) -> pathlib.Path:
                 "world_size": world, "train_samples": len(train_ds), "lr": cfg.lr, "device": str(device),
                 "threads": cfg.threads, "history": history, "step_seconds": seconds[-1000:],
                 "seconds_per_step_median": float(np.median(seconds[3:] or seconds)) if seconds else None,
-                "data_root": cfg.data_root or str(default_data_root())}
+                "data_root": cfg.data_root or str(default_data_root()), "config": dataclasses.asdict(cfg)}
 
     def save():
         save_checkpoint(ckpt_path, model, category=cfg.category, scale=scale, symmetry=symmetry, step=step,

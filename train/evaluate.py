@@ -1,0 +1,182 @@
+"""Paper-style evaluation: ours (torch checkpoint or the exported ONNX through the SDK) next to ICP-60 + template.
+
+Convention:
+    Test samples come from ``data`` (``raw(i)``): points in metres (file units for ModelNet), GT pose x = R x_obj + t
+    (metres), the instance's bbox diagonal. Rotation errors in degrees (symmetric categories: up-axis angle);
+    translation errors ‖t̂ − t‖ divided by the bbox diagonal on ModelNet (as the paper), so "0.05" is 5 % of the
+    diagonal. The checkpoint path feeds the model exactly what ``PoseEstimator`` does (``equipose.crop.prepare_points``:
+    centroid-centred, scaled, FPS-ordered), then argmin-of-60 selection and the stored calibration.
+    ICP-60 runs on the same points against 3 random training shapes (category frame, seeded); its row is the mean of
+    the per-template rows, as the paper.
+    JSON: ``{"category", "mode", "n", "rows": [{method, rot_mean_deg, rot_median_deg, trans_mean, trans_median,
+    acc_5deg, acc_5deg_005, flip_rate}]}`` (+ ``"details"`` under a separate key only when asked).
+"""
+from __future__ import annotations
+
+import json
+import pathlib
+import time
+
+import numpy as np
+
+from equipose.crop import prepare_points
+from equipose.errors import ConfigError
+from equipose.geometry import farthest_point_order
+
+from .calibration import apply_calibration
+from .data import ModelNetComplete, RenderedPartial, default_data_root, load_modelnet
+from .icp import icp60
+from .metrics import ROW_KEYS, rotation_errors, summarize, translation_errors
+
+__all__ = ["test_dataset", "predict_checkpoint", "predict_onnx", "run_icp", "evaluate", "plot_percentiles"]
+
+
+def test_dataset(root, category: str, mode: str, num_points: int, limit: int | None = None, cache_dir=None,
+                 views: int = 5):
+    """The paper's test set: complete = 5 seeded rotations per test instance; partial = rendered test views."""
+    if mode == "complete":
+        return ModelNetComplete(root, category, "test", num_points, train=False, limit=limit)
+    if mode == "partial":
+        from .render import ensure_cache
+        return RenderedPartial(ensure_cache(root, category, "test", cache_dir=cache_dir, limit=limit, views=views),
+                               num_points, train=False)
+    raise ConfigError(f"mode must be complete or partial, got {mode!r}")
+
+
+def predict_checkpoint(model, ckpt: dict, samples: list, batch_size: int = 16) -> tuple:
+    """Torch model on the SDK's model input. Returns (R [S, 3, 3], t [S, 3] metres), calibrated."""
+    from .inference import predict_torch
+    scale = float(ckpt["scale"])
+    preps = [prepare_points(s["points_m"], model.num_points, scale) for s in samples]
+    R, t, _ = predict_torch(model, np.stack([p.model_points for p in preps]), batch_size)
+    R, t = apply_calibration(R, t, ckpt.get("calibration"))
+    t_m = np.stack([p.to_metres(ti) for p, ti in zip(preps, t)])
+    return R, t_m
+
+
+def predict_onnx(model_path, samples: list, batch_size: int = 16) -> tuple:
+    """The exported model through ``equipose.PoseEstimator`` (what users run). Returns (R, t metres)."""
+    from equipose import PoseEstimator
+    est = PoseEstimator(model_path)
+    Rs, ts = [], []
+    for i in range(0, len(samples), batch_size):
+        for r in est.predict_points_batch([s["points_m"] for s in samples[i:i + batch_size]]):
+            Rs.append(r.rotation); ts.append(r.translation)
+    return np.stack(Rs), np.stack(ts), est
+
+
+def run_icp(samples: list, templates: list, bidirectional: bool, obs_points: int = 256, iters: int = 20,
+            progress: bool = True) -> list:
+    """[(R [S,3,3], t [S,3])] per template. Observations FPS-subsampled to ``obs_points``."""
+    from tqdm import tqdm
+    out = []
+    for k, tmpl in enumerate(templates):
+        Rs, ts = [], []
+        for s in tqdm(samples, desc=f"icp60 template {k + 1}/{len(templates)}", disable=not progress, leave=False):
+            x = s["points_m"]
+            x = x[farthest_point_order(x, min(obs_points, len(x)))]
+            R, t, _ = icp60(x, tmpl, iters=iters, bidirectional=bidirectional)
+            Rs.append(R); ts.append(t)
+        out.append((np.stack(Rs), np.stack(ts)))
+    return out
+
+
+def _row(method, R, t, samples, symmetry, unsigned):
+    R_gt = np.stack([s["rotation"] for s in samples])
+    t_gt = np.stack([s["translation_m"] for s in samples])
+    diag = np.array([s["diag_m"] for s in samples])
+    r_err = rotation_errors(R, R_gt, symmetry, unsigned)
+    t_err = translation_errors(t, t_gt, diag)
+    return summarize(method, r_err, t_err), r_err, t_err
+
+
+def evaluate(*, category: str, mode: str, checkpoint=None, model_path=None, data_root=None, limit: int | None = None,
+             icp_templates: int = 3, icp_points: int = 256, icp_iters: int = 20, template_points: int = 512,
+             seed: int = 0, cache_dir=None, progress: bool = True, log=print) -> dict:
+    """Run both methods on one test set; returns the result dict (JSON layout above) plus ``_errors`` arrays."""
+    root = data_root or default_data_root()
+    if (checkpoint is None) == (model_path is None):
+        raise ConfigError("give exactly one of --checkpoint or --model")
+    if checkpoint is not None:
+        from .checkpoint import model_from_checkpoint
+        model, ckpt = model_from_checkpoint(checkpoint)
+        num_points, symmetry, scale = model.num_points, ckpt["symmetry"], float(ckpt["scale"])
+        if ckpt["category"] != category:
+            log(f"warning: checkpoint category {ckpt['category']!r} ≠ --category {category!r}")
+        if bool(ckpt["partial"]) != (mode == "partial"):
+            log(f"warning: checkpoint partial={ckpt['partial']} but --mode {mode}")
+        if not ckpt.get("calibration"):
+            log("warning: checkpoint has no calibration (identity); run 'equipose calibrate' first")
+    else:
+        from equipose import PoseEstimator
+        est = PoseEstimator(model_path)
+        num_points, symmetry, scale = est.num_points, est.symmetry, est.scale
+    unsigned = category == "can"
+    ds = test_dataset(root, category, mode, num_points, limit=limit, cache_dir=cache_dir)
+    samples = [ds.raw(i) for i in range(len(ds))]
+    t0 = time.perf_counter()
+    if checkpoint is not None:
+        R, t = predict_checkpoint(model, ckpt, samples)
+    else:
+        R, t, _ = predict_onnx(model_path, samples)
+    ours_s = time.perf_counter() - t0
+    row, r_err, t_err = _row("equipose", R, t, samples, symmetry, unsigned)
+    rows, errors = [row], {"equipose": (r_err, t_err)}
+
+    clouds, _ = load_modelnet(root, category, "train")
+    pick = np.random.default_rng(seed).choice(len(clouds), size=icp_templates, replace=False)
+    templates = [clouds[i][farthest_point_order(clouds[i], template_points)].astype(np.float64) for i in pick]
+    t0 = time.perf_counter()
+    per = run_icp(samples, templates, bidirectional=(mode == "complete"), obs_points=icp_points, iters=icp_iters,
+                  progress=progress)
+    icp_s = time.perf_counter() - t0
+    trows, r_all, t_all = [], [], []
+    for Ri, ti in per:
+        rw, re, te = _row("icp60", Ri, ti, samples, symmetry, unsigned)
+        trows.append(rw); r_all.append(re); t_all.append(te)
+    icp_row = {"method": "icp60", **{k: float(np.mean([r[k] for r in trows])) for k in ROW_KEYS[1:]}}
+    rows.append(icp_row)
+    errors["icp60"] = (np.concatenate(r_all), np.concatenate(t_all))
+    log(f"evaluated {len(samples)} samples: ours {ours_s:.1f} s, ICP-60 × {icp_templates} templates {icp_s:.1f} s")
+    return {"category": category, "mode": mode, "n": len(samples), "rows": rows, "_errors": errors,
+            "_info": {"scale": scale, "symmetry": symmetry, "icp_templates": [int(i) for i in pick],
+                      "icp_per_template": trows, "seconds": {"ours": ours_s, "icp60": icp_s}}}
+
+
+def format_table(result: dict) -> str:
+    lines = [f"{result['category']} / {result['mode']}  (n = {result['n']})",
+             f"{'method':10s} {'rot mean':>9s} {'rot med':>8s} {'t mean':>7s} {'t med':>7s} {'5°':>5s} {'5°0.05':>7s} {'flip':>5s}"]
+    for r in result["rows"]:
+        lines.append(f"{r['method']:10s} {r['rot_mean_deg']:9.2f} {r['rot_median_deg']:8.2f} {r['trans_mean']:7.3f} "
+                     f"{r['trans_median']:7.3f} {r['acc_5deg']:5.2f} {r['acc_5deg_005']:7.2f} {r['flip_rate']:5.2f}")
+    return "\n".join(lines)
+
+
+def write_json(result: dict, path) -> None:
+    clean = {k: result[k] for k in ("category", "mode", "n", "rows")}
+    pathlib.Path(path).parent.mkdir(parents=True, exist_ok=True)
+    pathlib.Path(path).write_text(json.dumps(clean, indent=1) + "\n")
+
+
+def plot_percentiles(result: dict, path) -> None:
+    """PNG: rotation (and translation) error against percentile of test samples, one curve per method."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    fig, axes = plt.subplots(1, 2, figsize=(10, 4))
+    q = np.linspace(0, 100, 201)
+    for name, (r, t) in result["_errors"].items():
+        axes[0].plot(q, np.maximum(np.percentile(r, q), 1e-2), label=name)
+        axes[1].plot(q, np.percentile(t, q), label=name)
+    axes[0].set_ylabel("rotation error (°)")
+    axes[1].set_ylabel("translation error (/ bbox diagonal)")
+    for ax in axes:
+        ax.set_xlabel("percentile of test samples")
+        ax.grid(alpha=0.3)
+        ax.legend()
+    axes[0].set_yscale("log")
+    fig.suptitle(f"{result['category']} / {result['mode']} (n = {result['n']})")
+    fig.tight_layout()
+    pathlib.Path(path).parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
