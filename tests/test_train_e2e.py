@@ -57,3 +57,25 @@ def test_ddp_two_processes_gloo(tmp_path, data_root):
     assert r.returncode == 0, r.stdout[-2000:] + r.stderr[-3000:]
     ck = load_checkpoint(out / "latest.pt")
     assert ck["step"] == 2 and ck["training"]["world_size"] == 2
+
+
+def test_eval_exported_model_matches_checkpoint(tmp_path, data_root):
+    """--model evaluates the shipped ONNX through equipose.PoseEstimator; it agrees with the checkpoint path."""
+    pytest.importorskip("onnx")
+    out = tmp_path / "run"
+    common = ["--category", "airplane", "--data-root", str(data_root)]
+    assert main(["train", *common, "--mode", "complete", "--preset", "tiny", "--batch-size", "2", "--train-limit", "4",
+                 "--val-size", "5", "--steps", "1", "--out", str(out)]) == 0
+    assert main(["calibrate", "--checkpoint", str(out / "latest.pt"), "--num", "4"]) == 0
+    onnx_path = tmp_path / "m.onnx"
+    assert main(["export", "--checkpoint", str(out / "latest.pt"), "-o", str(onnx_path)]) == 0
+    rows = {}
+    for src in (["--checkpoint", str(out / "latest.pt")], ["--model", str(onnx_path)]):
+        js = tmp_path / f"{src[0][2:]}.json"
+        assert main(["eval", *src, *common, "--mode", "complete", "--limit", "2", "--icp-templates", "1",
+                     "--icp-iters", "2", "--json", str(js)]) == 0
+        rows[src[0]] = json.loads(js.read_text())["rows"]
+    a, b = rows["--checkpoint"][0], rows["--model"][0]
+    assert a["method"] == b["method"] == "equipose"
+    assert abs(a["trans_mean"] - b["trans_mean"]) < 1e-3
+    assert abs(a["rot_median_deg"] - b["rot_median_deg"]) < 0.1 and abs(a["rot_mean_deg"] - b["rot_mean_deg"]) < 0.5
