@@ -131,13 +131,16 @@ def select_hypothesis(rotations, translations, scores, *, symmetry: str = "none"
     """Pick the best hypothesis and say how sure that choice is.
 
     Convention: ``rotations`` [A, 3, 3] (category frame, i.e. after calibration), ``translations`` [A, 3],
-    ``scores`` [A] (lower better). ``prefer`` (tracking): keep hypothesis ``prefer`` instead of the argmin when its
-    relative margin to the argmin is below ``prefer_margin``.
+    ``scores`` [A] (lower better). ``prefer`` (tracking): a hypothesis index, or a previous rotation [3, 3] (then the
+    hypothesis nearest to it, modulo symmetry); it is kept instead of the argmin when its relative score margin to the
+    argmin is below ``prefer_margin``.
     Returns a ``Selection`` (see there for confidence / ambiguity definitions).
     """
     R, t, s = _check_hypotheses(rotations, translations, scores)
     A = len(s)
     best = int(np.argmin(s))
+    if prefer is not None and np.ndim(prefer) == 2:                             # previous rotation [3, 3]
+        prefer = int(np.argmin(symmetric_distance_deg(np.asarray(prefer, np.float64), R, symmetry)))
     if prefer is not None and 0 <= prefer < A and prefer != best:
         rel = (s[prefer] - s[best]) / max(abs(s[prefer]), 1e-12)
         if rel < prefer_margin:

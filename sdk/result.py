@@ -52,6 +52,18 @@ class PoseResult:
     crop: dict = field(default_factory=dict)
     object_id: int | None = None
     random_init: bool = False
+    raw_rotation: np.ndarray | None = None      # before temporal smoothing (tracking only)
+    raw_translation: np.ndarray | None = None
+
+    def set_pose(self, rotation, translation):
+        """Replace the pose (e.g. after smoothing) and update everything derived from it (shape, symmetry axis)."""
+        from .hypotheses import canonicalise_rotation, parse_symmetry
+        self.rotation = np.asarray(rotation, np.float64).reshape(3, 3)
+        self.translation = np.asarray(translation, np.float64).reshape(3)
+        self.canonical_shape = self.canonical_shape_object @ self.rotation.T + self.translation
+        kind, axis, _ = parse_symmetry(self.symmetry)
+        self.symmetry_axis = None if kind == "none" else self.rotation[:, axis].copy()
+        self.rotation_canonical = canonicalise_rotation(self.rotation, self.symmetry)
 
     @property
     def quaternion(self) -> np.ndarray:
