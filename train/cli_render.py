@@ -19,9 +19,19 @@ def add_arguments(p) -> None:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--data-root", dest="data_root", help="default $EQUIPOSE_DATA or ../shared/data")
     p.add_argument("--cache-dir", dest="cache_dir", help="default data_cache/ in the repository")
+    p.add_argument("--mesh", help="render one metric mesh (.ply/.obj, metres) instead of a ModelNet split")
+    p.add_argument("--distance-m", dest="distance_m", type=float, default=0.6, help="--mesh: object depth (m)")
+    p.add_argument("--out", help="--mesh: output .npz (default data_cache/mesh_<name>_v<views>.npz)")
 
 
 def run(args) -> int:
+    if args.mesh:
+        import pathlib
+        from .render import default_cache_dir, render_mesh_cache
+        name = pathlib.Path(args.mesh).parent.name
+        out = args.out or (pathlib.Path(args.cache_dir) if args.cache_dir else default_cache_dir()) / f"mesh_{name}_v{args.views}.npz"
+        print(f"cache: {render_mesh_cache(args.mesh, out, views=args.views, distance_m=args.distance_m, seed=args.seed)}")
+        return 0
     settings = RenderSettings(distance=CATEGORY_DISTANCE.get(args.category, 2.0))
     path = ensure_cache(args.data_root or default_data_root(), args.category, args.split, cache_dir=args.cache_dir,
                         limit=args.limit, views=args.views, source=args.source, seed=args.seed, settings=settings)
