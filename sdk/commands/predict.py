@@ -1,0 +1,117 @@
+"""``equipose predict``: poses on a depth source (PNG folder, .mcap, .pcd, ``oak``), printed and/or drawn.
+
+Convention: one output line per object per frame (``frame N: object K: <category> R(rotvec°)=[...] t(m)=[...]
+confidence=C``), or with ``--json`` one JSON object per frame (``TrackRecord.to_dict()``). ``--out DIR`` writes
+``DIR/NNNNNN.png`` overlays (axes + oriented box) and ``DIR/results.jsonl``. Bad frames are reported on stderr and the
+stream continues. Exit status: 0 if at least one pose was produced, 1 if none, 2 for unusable arguments/model/source.
+"""
+from __future__ import annotations
+
+import json
+import pathlib
+import sys
+
+from equipose.errors import ConfigError, RegionError
+
+__all__ = ["add_arguments", "run", "parse_box", "load_mask"]
+
+
+def parse_box(text: str) -> tuple:
+    """``"x,y,w,h"`` → (x, y, w, h) floats. Raises ``RegionError``."""
+    try:
+        vals = tuple(float(v) for v in text.split(","))
+    except ValueError:
+        raise RegionError(f"--box {text!r}: expected four numbers x,y,w,h") from None
+    if len(vals) != 4:
+        raise RegionError(f"--box {text!r}: expected four numbers x,y,w,h, got {len(vals)}")
+    return vals
+
+
+def load_mask(path) -> "np.ndarray":
+    """A mask image (any non-zero pixel = object) → [H, W] bool. Raises ``RegionError``."""
+    import cv2
+    m = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if m is None:
+        raise RegionError(f"--mask {path}: not a readable image file")
+    if m.ndim == 3:
+        m = m.max(axis=2)
+    return m > 0
+
+
+def add_arguments(p):
+    p.add_argument("--model", "-m", help="equipose .onnx model (default: the bundled random-weight demo model)")
+    p.add_argument("--source", "-s", required=True,
+                   help="PNG folder (with intrinsics.json), .mcap recording, .pcd file/folder, or 'oak'")
+    g = p.add_mutually_exclusive_group()
+    g.add_argument("--box", action="append", metavar="x,y,w,h", help="object box in pixels (repeat for several)")
+    g.add_argument("--mask", action="append", metavar="FILE", help="object mask image (repeat for several)")
+    g.add_argument("--auto", action="store_true", help="find objects on a table automatically (plane + clusters)")
+    p.add_argument("--out", "-o", help="folder for overlay PNGs and results.jsonl")
+    p.add_argument("--json", action="store_true", help="print one JSON object per frame instead of text lines")
+    p.add_argument("--threads", type=int, default=None, help="onnxruntime threads (default: all cores)")
+    p.add_argument("--max-frames", type=int, default=None, help="stop after this many frames")
+    p.add_argument("--smoothing", type=float, default=0.0, help="temporal smoothing α in [0, 1) (default 0: raw)")
+
+
+def run(args) -> int:
+    from equipose.estimator import PoseEstimator
+    from equipose.sources import open_source
+
+    if args.max_frames is not None and args.max_frames < 1:
+        raise ConfigError("--max-frames must be ≥ 1")
+    model = args.model
+    if model is None:
+        from equipose.models import demo_model_path
+        model = demo_model_path()
+    est = PoseEstimator(model, threads=args.threads)
+    if est.random_init:
+        print(f"note: {pathlib.Path(model).name} has random weights (placeholder until trained models exist): "
+              "its poses are meaningless", file=sys.stderr)
+    boxes = [parse_box(b) for b in args.box] if args.box else None
+    masks = [load_mask(m) for m in args.mask] if args.mask else None
+    out = pathlib.Path(args.out) if args.out else None
+    if out:
+        out.mkdir(parents=True, exist_ok=True)
+    jsonl = open(out / "results.jsonl", "w") if out else None
+    n_poses = 0
+    try:
+        with open_source(args.source) as src:
+            for rec in est.track(src, boxes=boxes, masks=masks, auto=args.auto, smoothing=args.smoothing,
+                                 max_frames=args.max_frames, keep_frames=out is not None):
+                n_poses += len(rec.poses)
+                d = rec.to_dict()
+                if jsonl:
+                    jsonl.write(json.dumps(d) + "\n")
+                if args.json:
+                    print(json.dumps(d), flush=True)
+                else:
+                    for pose in rec.poses:
+                        print(f"frame {rec.frame_index}: {pose.summary()}", flush=True)
+                    if not rec.poses and not rec.errors:
+                        print(f"frame {rec.frame_index}: no object found", flush=True)
+                for e in rec.errors:
+                    who = "" if e.object_id is None else f" object {e.object_id}"
+                    print(f"frame {rec.frame_index}{who}: {e.error}: {e.message}", file=sys.stderr, flush=True)
+                if out and rec.frame is not None:
+                    _write_overlay(out / f"{rec.frame_index:06d}.png", rec)
+    finally:
+        if jsonl:
+            jsonl.close()
+    if out:
+        print(f"overlays and results.jsonl written to {out}", file=sys.stderr)
+    return 0 if n_poses else 1
+
+
+def _write_overlay(path, rec):
+    import cv2
+    import numpy as np
+
+    from equipose.crop import check_intrinsics
+    from equipose.overlay import to_bgr
+
+    f = rec.frame
+    img = to_bgr(f.rgb if f.rgb is not None else f.depth)
+    K = check_intrinsics(f.K, np.shape(f.depth)[:2], f.image_size)
+    for pose in rec.poses:
+        img = pose.plot(img, K)
+    cv2.imwrite(str(path), img)
