@@ -21,6 +21,8 @@ def add_arguments(p) -> None:
     p.add_argument("--icp-templates", dest="icp_templates", type=int, default=3)
     p.add_argument("--icp-points", dest="icp_points", type=int, default=256, help="observed points used by ICP")
     p.add_argument("--icp-iters", dest="icp_iters", type=int, default=20)
+    p.add_argument("--icp-samples", dest="icp_samples", type=int,
+                   help="run ICP on an evenly spaced subset of this many test samples (its row then carries 'n')")
     p.add_argument("--data-root", dest="data_root")
     p.add_argument("--cache-dir", dest="cache_dir")
     p.add_argument("--threads", type=int, default=1, help="torch threads")
@@ -31,7 +33,7 @@ def run(args) -> int:
     torch.set_num_threads(max(1, args.threads))
     res = evaluate(category=args.category, mode=args.mode, checkpoint=args.checkpoint, model_path=args.model,
                    data_root=args.data_root, limit=args.limit, icp_templates=args.icp_templates,
-                   icp_points=args.icp_points, icp_iters=args.icp_iters, cache_dir=args.cache_dir)
+                   icp_points=args.icp_points, icp_iters=args.icp_iters, icp_samples=args.icp_samples, cache_dir=args.cache_dir)
     print(format_table(res))
     if args.json:
         write_json(res, args.json)
