@@ -206,6 +206,23 @@ def export_random_model(preset, path, partial: bool = True, category: str = "unk
                         training=kwargs.pop("training", training), **kwargs)
 
 
+MAX_LIST_IN_METADATA = 32
+
+
+def _summary_of(training: dict) -> dict:
+    """The checkpoint's training dict without per-step logs (lists longer than 32 entries, e.g. step times),
+    which would bloat every model file; their names are listed under ``"omitted"``."""
+    keep, omitted = {}, []
+    for k, v in training.items():
+        if isinstance(v, (list, tuple)) and len(v) > MAX_LIST_IN_METADATA:
+            omitted.append(k)
+        else:
+            keep[k] = v
+    if omitted:
+        keep["omitted"] = omitted
+    return keep
+
+
 def export_checkpoint(checkpoint, path, **kwargs) -> pathlib.Path:
     """Export a training checkpoint (``equipose.train.checkpoint`` format) with its category, scale, symmetry,
     calibration, training summary and metrics."""
@@ -219,7 +236,7 @@ def export_checkpoint(checkpoint, path, **kwargs) -> pathlib.Path:
         model, ckpt = model_from_checkpoint(checkpoint)
     except Exception as e:                                                 # pickle, key, shape mismatches
         raise ModelFormatError(f"{checkpoint} is not a readable equipose checkpoint: {e}") from None
-    training = dict(ckpt.get("training") or {})
+    training = _summary_of(ckpt.get("training") or {})
     training.setdefault("step", int(ckpt.get("step", 0)))
     training.setdefault("mode", "partial" if model.partial else "complete")
     return export_model(model, path, category=ckpt.get("category", "unknown"), scale=ckpt.get("scale", 1.0),

@@ -58,7 +58,8 @@ def tiny_ckpt(tmp_path_factory):
                 m.running_mean.uniform_(-0.1, 0.1)
                 m.running_var.uniform_(0.5, 1.5)
     ckpt = save_checkpoint(d / "tiny.pt", model, category="mug", scale=0.25, symmetry="continuous:z", step=42,
-                           calibration=CALIBRATION, training={"dataset": "synthetic", "mode": "partial"},
+                           calibration=CALIBRATION,
+                           training={"dataset": "synthetic", "mode": "partial", "step_seconds": [0.5] * 100},
                            metrics={"rot_err_median_deg": 12.5})
     path = export_checkpoint(ckpt, d / "tiny.onnx", verify=False)
     return model, path
@@ -200,6 +201,7 @@ def test_metadata_round_trip(tiny_ckpt, tiny_cli):
     np.testing.assert_allclose(meta["anchors"], I.ANCHOR_QUATERNIONS, atol=1e-8)
     assert meta["metrics"] == {"rot_err_median_deg": 12.5}
     assert meta["training"]["dataset"] == "synthetic" and meta["training"]["step"] == 42
+    assert "step_seconds" not in meta["training"] and meta["training"]["omitted"] == ["step_seconds"]
 
     cli_meta = decode_metadata(_session(tiny_cli[1]).get_modelmeta().custom_metadata_map)
     assert cli_meta["category"] == "bowl" and cli_meta["scale"] == 0.5 and cli_meta["partial"] is False
