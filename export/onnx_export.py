@@ -17,6 +17,7 @@ import io
 import logging
 import os
 import pathlib
+import sys
 import warnings
 
 import numpy as np
@@ -58,10 +59,14 @@ def _quiet_exporter():
     levels = [lg.level for lg in loggers]
     for lg in loggers:
         lg.setLevel(logging.ERROR)
+    buf = io.StringIO()
     try:
-        with contextlib.redirect_stdout(io.StringIO()), warnings.catch_warnings():
+        with contextlib.redirect_stdout(buf), warnings.catch_warnings():
             warnings.simplefilter("ignore")
             yield
+    except BaseException:
+        sys.stderr.write(buf.getvalue())                  # the exporter's own report helps when it fails
+        raise
     finally:
         for lg, lv in zip(loggers, levels):
             lg.setLevel(lv)
