@@ -131,7 +131,8 @@ class PoseEstimator:
         R_cat, t_cat = apply_calibration(R_all, t_all, dR, dt)                  # [60, 3, 3], [60, 3]
         sel = select_hypothesis(R_cat, t_cat, s_all, symmetry=self.symmetry, top_k=self.top_k, prefer=prefer,
                                 prefer_margin=prefer_margin)
-        R = R_cat[sel.index]                                                    # [3, 3]
+        U, _, Vt = np.linalg.svd(R_cat[sel.index])                              # float32 model output → exact SO(3)
+        R = U @ np.diag([1.0, 1.0, np.linalg.det(U @ Vt)]) @ Vt                 # [3, 3]
         t_m = prep.to_metres(t_cat[sel.index])                                  # [3] metres
         canon_obj = (canon @ dR.T + dt) * self.scale                            # [M, 3] category frame, metres
         canon_cam = canon_obj @ R.T + t_m                                       # [M, 3] camera frame, metres

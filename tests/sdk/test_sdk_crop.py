@@ -1,0 +1,80 @@
+"""Crop geometry on synthetic depth: sphere in front of a wall, masks, K rescaling, units, outliers, FPS, auto masks."""
+import numpy as np
+import pytest
+
+from conftest import K_VGA, sphere_scene, tabletop_scene
+from equipose.crop import (auto_masks, check_intrinsics, crop_points, fps_order, nearest_depth_cluster,
+                           prepare_points, statistical_outlier_mask)
+from equipose.geometry import farthest_point_order
+
+CENTRE, RADIUS = np.array([0.02, -0.01, 0.8]), 0.05
+
+
+def test_box_crop_keeps_only_the_sphere_surface():
+    depth, hit = sphere_scene(CENTRE, RADIUS)
+    res = crop_points(depth, K_VGA, box=(240, 150, 170, 170))                  # box includes plenty of wall
+    dist = np.linalg.norm(res.points - CENTRE, axis=1)
+    assert res.points.dtype == np.float32 and res.points.shape[1] == 3
+    assert np.all(np.abs(dist - RADIUS) < 0.004)                                # every point on the sphere (mm rounding)
+    assert res.points[:, 2].max() < CENTRE[2]                                   # wall (1.5 m) rejected
+    assert res.diagnostics["cluster"] < res.diagnostics["subsampled"]
+    rows, cols = res.pixels.T
+    assert hit[rows, cols].all()                                                # pixel indices point at the sphere
+
+
+def test_mask_crop_and_float_metres_agree_with_uint16_mm():
+    depth, hit = sphere_scene(CENTRE, RADIUS)
+    a = crop_points(depth, K_VGA, mask=hit, outlier_std=0)
+    b = crop_points(depth.astype(np.float32) / 1000.0, K_VGA, mask=hit, depth_unit="m", outlier_std=0)
+    assert len(a.points) == hit.sum()                                           # no cleaning: every mask pixel
+    np.testing.assert_allclose(a.points, b.points, atol=1e-6)
+
+
+def test_intrinsics_are_rescaled_to_the_frame_size():
+    depth, hit = sphere_scene(CENTRE, RADIUS)
+    K2 = check_intrinsics(K_VGA, (480, 640))
+    K_full = K_VGA.copy()                                                       # the same camera at 1280×960
+    K_full[:2, :2] *= 2
+    K_full[:2, 2] = (K_VGA[:2, 2] + 0.5) * 2 - 0.5
+    K_back = check_intrinsics(K_full, (480, 640), image_size=(1280, 960))
+    np.testing.assert_allclose(K_back, K2, atol=1e-9)
+    a = crop_points(depth, K_VGA, mask=hit)
+    b = crop_points(depth, K_full, mask=hit, image_size=(1280, 960))
+    np.testing.assert_allclose(a.points, b.points, atol=1e-6)
+
+
+def test_outliers_and_background_clusters_are_removed():
+    rng = np.random.default_rng(0)
+    pts = rng.normal(scale=0.01, size=(2000, 3)) + [0, 0, 0.8]
+    pts[:5] += [0.3, 0.0, 0.0]                                                  # five flying pixels
+    keep = statistical_outlier_mask(pts)
+    assert not keep[:5].any() and keep[5:].mean() > 0.95
+    z = np.concatenate([rng.uniform(0.70, 0.75, 500), rng.uniform(1.2, 1.3, 3000), [0.3]])  # object, wall, speck
+    keep = nearest_depth_cluster(z)
+    assert keep[:500].all() and not keep[500:].any()
+
+
+def test_prepare_points_is_fps_ordered_and_invertible():
+    depth, hit = sphere_scene(CENTRE, RADIUS)
+    res = crop_points(depth, K_VGA, mask=hit)
+    prep = prepare_points(res.points, 256, 0.25)
+    assert prep.model_points.shape == (256, 3) and prep.model_points.dtype == np.float32
+    np.testing.assert_allclose(prep.to_metres(prep.model_points), res.points[prep.order], atol=1e-5)
+    assert np.abs(prep.centre_m - res.points.mean(0)).max() < 1e-3
+    assert np.abs(prep.model_points).max() < 0.5                                # ≈ 5 cm / 0.25 m per unit
+    # nested FPS: the fast version equals the reference implementation
+    q = prep.model_points
+    np.testing.assert_array_equal(fps_order(q, 64), farthest_point_order(q, 64))
+    # fewer points than N: the order wraps around
+    small = prepare_points(res.points[:100], 256, 0.25)
+    assert small.model_points.shape == (256, 3) and len(np.unique(small.order)) == 100
+
+
+def test_auto_masks_find_both_objects_on_the_table():
+    depth, truth = tabletop_scene()
+    masks = auto_masks(depth, K_VGA)
+    assert len(masks) == 2
+    for m in masks:
+        overlaps = [(m & t).sum() / m.sum() for t in truth]
+        assert max(overlaps) > 0.95                                             # each mask is one object
+        assert (m & truth[int(np.argmax(overlaps))]).sum() > 0.9 * truth[int(np.argmax(overlaps))].sum()

@@ -1,0 +1,51 @@
+"""Tracking: the stream continues past bad frames; ids, smoothing and hypothesis re-use."""
+import numpy as np
+import pytest
+
+from conftest import K_VGA, sphere_scene, tabletop_scene
+from equipose.result import FrameError
+from equipose.sources import Frame
+
+
+def test_track_continues_past_bad_frames(estimator):
+    depth, hit = sphere_scene((0.0, 0.0, 0.8), 0.05)
+    good = Frame(depth=depth, K=K_VGA)
+    stream = [good,
+              Frame(depth=depth.astype(np.uint8), K=K_VGA),                     # cv2.imread without UNCHANGED
+              FrameError(0, "SourceError", "file unreadable"),                  # a source-level error record
+              Frame(depth=depth, K=np.eye(4)),                                  # broken intrinsics
+              good]
+    recs = list(estimator.track(stream, boxes=[(250, 170, 140, 140), (900, 900, 10, 10)]))
+    assert [r.frame_index for r in recs] == [0, 1, 2, 3, 4]
+    assert [len(r.poses) for r in recs] == [1, 0, 0, 0, 1]
+    assert recs[1].errors[0].error == "DepthDtypeError"
+    assert recs[2].errors[0].error == "SourceError"
+    assert recs[3].errors[0].error == "IntrinsicsError"
+    # the second box is outside the image: a per-object error, object 0 still reported
+    assert [e.object_id for e in recs[0].errors] == [1] and recs[0].errors[0].error == "RegionError"
+    assert recs[0].poses[0].object_id == 0 and recs[4].poses[0].object_id == 0
+    np.testing.assert_allclose(recs[4].poses[0].rotation, recs[0].poses[0].rotation, atol=1e-6)
+    assert recs[0].to_dict()["errors"][0]["object_id"] == 1
+
+
+def test_smoothing_blends_towards_the_new_pose(estimator):
+    d1, _ = sphere_scene((0.0, 0.0, 0.8), 0.05)
+    d2, _ = sphere_scene((0.02, 0.0, 0.8), 0.05)
+    stream = [Frame(depth=d1, K=K_VGA), Frame(depth=d2, K=K_VGA)]
+    box = [(230, 170, 180, 140)]
+    raw = list(estimator.track(stream, boxes=box, smoothing=0.0))
+    smooth = list(estimator.track(stream, boxes=box, smoothing=0.5, reset_angle_deg=180.0))
+    p0, p1 = raw[0].poses[0], raw[1].poses[0]
+    s1 = smooth[1].poses[0]
+    np.testing.assert_allclose(s1.raw_translation, p1.translation, atol=1e-9)
+    if np.linalg.norm(p1.translation - p0.translation) <= 0.1:
+        np.testing.assert_allclose(s1.translation, 0.5 * (p0.translation + p1.translation), atol=1e-6)
+    np.testing.assert_allclose(s1.rotation @ s1.rotation.T, np.eye(3), atol=1e-9)
+
+
+def test_auto_tracking_keeps_object_ids(estimator):
+    depth, truth = tabletop_scene()
+    stream = [Frame(depth=depth, K=K_VGA)] * 3
+    recs = list(estimator.track(stream, auto=True))
+    ids = [sorted(p.object_id for p in r.poses) for r in recs]
+    assert ids == [[0, 1]] * 3
