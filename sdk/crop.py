@@ -287,7 +287,7 @@ def nearest_depth_cluster(z: np.ndarray, gap_m: float = 0.03, rel_gap: float = 0
 # Crop
 
 def crop_points(depth, K, *, box=None, mask=None, depth_unit="mm", image_size=None, min_depth: float = 0.1,
-                max_depth: float = 10.0, max_points: int = 8192, reject_background: bool | None = None,
+                max_depth: float = 10.0, max_points: int = 4096, reject_background: bool | None = None,
                 outlier_k: int = 8, outlier_std: float = 2.0, min_points: int = MIN_POINTS,
                 check_plausible: bool = True) -> CropResult:
     """Depth frame + box/mask → cleaned object points in metres.
