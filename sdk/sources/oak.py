@@ -50,7 +50,6 @@ class OakCamera(FrameSource):
         self._device = None
 
     def _build(self, dai):
-        os.environ.setdefault("DEPTHAI_SEARCH_TIMEOUT", str(self.search_timeout_ms))
         try:
             device = dai.Device(dai.DeviceInfo(self.device_id)) if self.device_id else dai.Device()
         except RuntimeError as e:
@@ -82,6 +81,7 @@ class OakCamera(FrameSource):
         return device, p, queue, K_calib
 
     def __iter__(self):
+        os.environ.setdefault("DEPTHAI_SEARCH_TIMEOUT", str(self.search_timeout_ms))  # before libdepthai reads it
         dai = import_depthai()
         device, p, queue, K_calib = self._build(dai)
         self._device, self._pipeline = device, p

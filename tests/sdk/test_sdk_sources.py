@@ -121,3 +121,12 @@ def test_record_command_png_and_mcap(tmp_path):
     assert main(["record", "--source", str(tmp_path / "png"), "-o", str(tmp_path / "r.mcap")]) == 0
     (c,) = list(open_source(tmp_path / "r.mcap"))
     assert np.array_equal(c.depth, b[0].depth)
+
+
+def test_oak_camera_is_created_without_touching_a_device():
+    from equipose.sources import OakCamera
+    cam = open_source("oak", size=(640, 400), fps=15)
+    assert isinstance(cam, OakCamera) and cam._pipeline is None                 # nothing opened until iteration
+    cam.close()
+    with pytest.raises(errors.ConfigError):
+        OakCamera(size=(0, 400))
