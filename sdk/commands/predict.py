@@ -94,6 +94,8 @@ def run(args) -> int:
                     print(f"frame {rec.frame_index}{who}: {e.error}: {e.message}", file=sys.stderr, flush=True)
                 if out and rec.frame is not None:
                     _write_overlay(out / f"{rec.frame_index:06d}.png", rec)
+    except KeyboardInterrupt:                                                   # live camera: Ctrl-C ends the run
+        print("stopped", file=sys.stderr)
     finally:
         if jsonl:
             jsonl.close()
