@@ -78,3 +78,17 @@ def test_auto_masks_find_both_objects_on_the_table():
         overlaps = [(m & t).sum() / m.sum() for t in truth]
         assert max(overlaps) > 0.95                                             # each mask is one object
         assert (m & truth[int(np.argmax(overlaps))]).sum() > 0.9 * truth[int(np.argmax(overlaps))].sum()
+
+
+@pytest.mark.parametrize("scene", ["learn40", "learn44"])
+def test_auto_masks_on_labelled_kinect_scenes(data_root, scene):
+    pypcd4 = pytest.importorskip("pypcd4")
+    from equipose.sources.pcd import read_organized_pcd
+    path = data_root / "kinect_pcl_objects" / "mOSD_learn_cylindric" / f"{scene}.pcd"
+    label = pypcd4.PointCloud.from_path(path).numpy(("label",)).reshape(480, 640).astype(int)
+    truth = [label // 10 == k for k in range(2, 12) if (label // 10 == k).any()]  # 20–29 first object, ...
+    depth, K, _ = read_organized_pcd(path)
+    masks = auto_masks(depth, K)
+    assert len(masks) == len(truth)
+    for t in truth:
+        assert max((m & t).sum() / (m | t).sum() for m in masks) > 0.8
