@@ -27,7 +27,7 @@ from .errors import (DepthDtypeError, DepthUnitError, EmptyDepthError, Intrinsic
 
 __all__ = ["CropResult", "PreparedPoints", "MIN_POINTS", "depth_to_metres", "check_intrinsics", "check_box",
            "check_mask", "crop_points", "prepare_points", "check_points", "statistical_outlier_mask",
-           "nearest_depth_cluster", "auto_masks", "fit_plane_ransac", "fps_order"]
+           "nearest_depth_cluster", "auto_masks", "fit_plane_ransac", "fps_order", "find_support_plane"]
 
 MIN_POINTS = 64                 # fewer points than this after the crop cannot give a meaningful pose
 PLAUSIBLE_DEPTH_M = (0.05, 30.0)  # median valid depth must fall in here for the declared unit to be believed
@@ -289,16 +289,20 @@ def nearest_depth_cluster(z: np.ndarray, gap_m: float = 0.03, rel_gap: float = 0
 def crop_points(depth, K, *, box=None, mask=None, depth_unit="mm", image_size=None, min_depth: float = 0.1,
                 max_depth: float = 10.0, max_points: int = 4096, reject_background: bool | None = None,
                 outlier_k: int = 8, outlier_std: float = 2.0, min_points: int = MIN_POINTS,
-                check_plausible: bool = True) -> CropResult:
+                check_plausible: bool = True, remove_support_plane: bool | None = None, support_plane=None,
+                plane_height: float = 0.012) -> CropResult:
     """Depth frame + box/mask → cleaned object points in metres.
 
     Convention: ``depth`` [H, W] in ``depth_unit``; ``K`` [3, 3] for ``image_size`` (W, H) or the frame itself;
     ``box`` (x, y, w, h) pixels and/or ``mask`` [H, W] bool (both → their intersection; neither → whole frame).
     Returns ``CropResult`` with points [P, 3] float32 metres in the camera frame.
 
-    Stages: validation → region → invalid-depth removal → depth gating [``min_depth``, ``max_depth``] m → regular
-    pixel-grid subsampling to at most ``max_points`` → background rejection (nearest depth cluster; default on for a
-    box without a mask) → statistical outlier removal (k = ``outlier_k``, ``outlier_std``; 0 disables).
+    Stages: validation → region → invalid-depth removal → depth gating [``min_depth``, ``max_depth``] m → support
+    plane removal (points less than ``plane_height`` above the frame's dominant plane, or beyond it, are dropped;
+    ``support_plane`` = precomputed (normal, offset) from ``find_support_plane``; default on for a box without a
+    mask, and skipped when the frame has no dominant plane or too few points would remain) → regular pixel-grid
+    subsampling to at most ``max_points`` → background rejection (nearest depth cluster; default on for a box
+    without a mask) → statistical outlier removal (k = ``outlier_k``, ``outlier_std``; 0 disables).
     Raises ``DepthDtypeError``, ``DepthUnitError``, ``EmptyDepthError``, ``IntrinsicsError``, ``RegionError``,
     ``TooFewPointsError``. ``check_plausible=False`` skips the unit plausibility check (already-validated frames).
     """
@@ -327,6 +331,19 @@ def crop_points(depth, K, *, box=None, mask=None, depth_unit="mm", image_size=No
         raise TooFewPointsError(f"{diag['gated']} valid pixels within {min_depth}–{max_depth} m in the region (need "
                                 f"≥ {min_points}); enlarge the box/mask or change min_depth/max_depth")
     rows, cols = np.nonzero(valid)                                              # [P], [P]
+    if remove_support_plane is None:
+        remove_support_plane = box is not None and mask is None
+    if remove_support_plane:
+        plane = support_plane if support_plane is not None else find_support_plane(d, Kf)
+        if plane is not None:
+            n, off = plane
+            z = d[rows, cols]                                                   # [P] float32
+            h = ((cols - Kf[0, 2]) * z / Kf[0, 0] * n[0] + (rows - Kf[1, 2]) * z / Kf[1, 1] * n[1]
+                 + z * n[2] + off)                                              # [P] height above the plane, m
+            above = h > plane_height
+            if above.sum() >= min_points:
+                rows, cols = rows[above], cols[above]
+                diag["above_plane"] = int(above.sum())
     if len(rows) > max_points:                                                  # regular grid, deterministic
         s = int(math.ceil(math.sqrt(len(rows) / max_points)))
         keep = ((rows - y0) % s == 0) & ((cols - x0) % s == 0)
@@ -354,6 +371,25 @@ def crop_points(depth, K, *, box=None, mask=None, depth_unit="mm", image_size=No
                                 "enlarge the box/mask, move the camera closer, or check the depth frame")
     return CropResult(points=pts.astype(np.float32), pixels=np.stack([rows, cols], 1).astype(np.int64), K=Kf,
                       diagnostics=diag)
+
+
+def find_support_plane(depth_m: np.ndarray, K: np.ndarray, *, threshold: float = 0.012, min_fraction: float = 0.2,
+                       grid: int = 4, seed: int = 0):
+    """The frame's dominant plane (table, floor) if it is dominant enough, else None.
+
+    Convention: ``depth_m`` [H, W] float metres (0 = invalid), ``K`` [3, 3] for this frame. RANSAC on a ``grid``-pixel
+    lattice; the plane counts when at least ``min_fraction`` of the lattice's valid points are within ``threshold``.
+    Returns (normal [3], offset) oriented so the camera side is positive (see ``fit_plane_ransac``), or None.
+    """
+    sub = np.asarray(depth_m)[::grid, ::grid]                                   # [h, w] m
+    r, c = np.nonzero(sub > 0)
+    if len(r) < 100:
+        return None
+    z = sub[r, c].astype(np.float64)
+    rows, cols = r * grid, c * grid
+    pts = np.stack([(cols - K[0, 2]) * z / K[0, 0], (rows - K[1, 2]) * z / K[1, 1], z], 1)  # [S, 3] m
+    n, off, inl = fit_plane_ransac(pts, threshold=threshold, seed=seed)
+    return (n, off) if inl.mean() >= min_fraction else None
 
 
 # ----------------------------------------------------------------------------------------------------------------------

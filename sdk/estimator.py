@@ -221,6 +221,16 @@ class PoseEstimator:
         t0 = time.perf_counter()
         depth_m = _crop.depth_to_metres(depth, depth_unit)                      # [H, W] m — validates once per frame
         Kf = _crop.check_intrinsics(K, depth_m.shape, image_size)               # [3, 3]
+        opts = {**self.crop_options, **crop_options}
+        wants_plane = opts.get("remove_support_plane")
+        if wants_plane is None:
+            wants_plane = any(r.get("box") is not None and r.get("mask") is None for r in regions)
+        if wants_plane and opts.get("support_plane") is None:                   # one plane fit per frame
+            plane = _crop.find_support_plane(depth_m, Kf)
+            if plane is None:
+                crop_options = {**crop_options, "remove_support_plane": False}
+            else:
+                crop_options = {**crop_options, "support_plane": plane}
         shared_ms = _ms(t0) / len(regions)
         preps, crops, fps_ms, crop_ms, counts, slots, out, prefs = [], [], [], [], [], [], [None] * len(regions), []
         for i, reg in enumerate(regions):

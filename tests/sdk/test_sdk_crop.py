@@ -10,14 +10,16 @@ from equipose.geometry import farthest_point_order
 CENTRE, RADIUS = np.array([0.02, -0.01, 0.8]), 0.05
 
 
-def test_box_crop_keeps_only_the_sphere_surface():
+@pytest.mark.parametrize("plane", [True, False])                              # wall removed as plane / depth cluster
+def test_box_crop_keeps_only_the_sphere_surface(plane):
     depth, hit = sphere_scene(CENTRE, RADIUS)
-    res = crop_points(depth, K_VGA, box=(240, 150, 170, 170))                  # box includes plenty of wall
+    res = crop_points(depth, K_VGA, box=(240, 150, 170, 170), remove_support_plane=plane)  # plenty of wall in the box
     dist = np.linalg.norm(res.points - CENTRE, axis=1)
     assert res.points.dtype == np.float32 and res.points.shape[1] == 3
     assert np.all(np.abs(dist - RADIUS) < 0.004)                                # every point on the sphere (mm rounding)
     assert res.points[:, 2].max() < CENTRE[2]                                   # wall (1.5 m) rejected
-    assert res.diagnostics["cluster"] < res.diagnostics["subsampled"]
+    assert ("above_plane" in res.diagnostics) == plane
+    assert res.diagnostics["cluster"] < res.diagnostics["subsampled"] or plane
     rows, cols = res.pixels.T
     assert hit[rows, cols].all()                                                # pixel indices point at the sphere
 
@@ -92,3 +94,14 @@ def test_auto_masks_on_labelled_kinect_scenes(data_root, scene):
     assert len(masks) == len(truth)
     for t in truth:
         assert max((m & t).sum() / (m | t).sum() for m in masks) > 0.8
+
+
+def test_box_crop_removes_the_supporting_table():
+    depth, truth = tabletop_scene()
+    box = (160, 200, 110, 160)                                                  # object 0 plus a lot of table
+    res = crop_points(depth, K_VGA, box=box)
+    rows, cols = res.pixels.T
+    assert truth[0][rows, cols].mean() > 0.98 and "above_plane" in res.diagnostics
+    plain = crop_points(depth, K_VGA, box=box, remove_support_plane=False)
+    rows, cols = plain.pixels.T
+    assert truth[0][rows, cols].mean() < 0.9                                    # without it the table leaks in
