@@ -25,9 +25,10 @@ from equipose.presets import ModelConfig
 
 from .model import EquiPoseNet
 
-__all__ = ["save_checkpoint", "load_checkpoint", "model_from_checkpoint", "CHECKPOINT_FORMAT"]
+__all__ = ["save_checkpoint", "load_checkpoint", "model_from_checkpoint", "clean_state_dict", "CHECKPOINT_FORMAT"]
 
 CHECKPOINT_FORMAT = 1
+_CONSTANT_BUFFERS = ("kernel_t", "kernel_sq", "kernel_aug", "table", "anchors", "anchors_cat")
 
 
 def save_checkpoint(path, model: EquiPoseNet, *, category: str, scale: float, symmetry: str = "none",
@@ -62,9 +63,14 @@ def load_checkpoint(path) -> dict:
     return ckpt
 
 
+def clean_state_dict(state: dict) -> dict:
+    """Drop constant tables (non-persistent buffers now) that older checkpoints stored with the weights."""
+    return {k: v for k, v in state.items() if k.rsplit(".", 1)[-1] not in _CONSTANT_BUFFERS}
+
+
 def model_from_checkpoint(ckpt_or_path) -> tuple:
     """(model in eval mode, checkpoint dict)."""
     ckpt = load_checkpoint(ckpt_or_path) if not isinstance(ckpt_or_path, dict) else ckpt_or_path
     model = EquiPoseNet(ModelConfig.from_dict(ckpt["model_config"]), partial=ckpt["partial"])
-    model.load_state_dict(ckpt["state_dict"])
+    model.load_state_dict(clean_state_dict(ckpt["state_dict"]))
     return model.eval(), ckpt

@@ -36,10 +36,11 @@ def knn_gather_index(support: torch.Tensor, centres: torch.Tensor, k: int) -> to
         int64 [B·P2·k] indices into ``support.reshape(B·P1, ...)`` (batch offset included), nearest first.
     """
     B, P1, _ = support.shape
-    d2 = ((centres * centres).sum(-1, keepdim=True)                     # [B, P2, 1]
-          - 2.0 * centres @ support.transpose(1, 2)                     # [B, P2, P1]
-          + (support * support).sum(-1).unsqueeze(1))                   # [B, 1, P1]
-    idx = torch.topk(d2, k, dim=-1, largest=False, sorted=True).indices  # [B, P2, k]
+    # rank by ‖s‖² − 2 c·s (‖c‖² is constant per row): one MatMul of augmented vectors [c, 1] · [−2s, ‖s‖²]
+    c_aug = torch.cat([centres, torch.ones_like(centres[..., :1])], dim=-1)            # [B, P2, 4]
+    s_aug = torch.cat([-2.0 * support, (support * support).sum(-1, keepdim=True)], dim=-1)  # [B, P1, 4]
+    rank = c_aug @ s_aug.transpose(1, 2)                                               # [B, P2, P1]
+    idx = torch.topk(rank, k, dim=-1, largest=False, sorted=True).indices              # [B, P2, k]
     offset = (torch.arange(B, device=support.device) * P1).view(B, 1, 1)
     return (idx + offset).reshape(-1)                                   # [B·P2·k]
 
@@ -69,8 +70,10 @@ class InterSO3Conv(nn.Module):
         self.spec, self.k = spec, kernel_points
         kern = icosahedral.kernel_points(kernel_points, spec.kernel_radius)           # [K, 3]
         rot = np.einsum("aij,kj->aki", icosahedral.ANCHORS, kern).reshape(-1, 3)     # [A·K, 3]
-        self.register_buffer("kernel_t", torch.tensor(rot.T.copy(), dtype=torch.float32))   # [3, A·K]
-        self.register_buffer("kernel_sq", torch.tensor((rot ** 2).sum(1), dtype=torch.float32))  # [A·K]
+        # hat weights as one MatMul: 1 − ‖r − κ‖²/σ = [r, ‖r‖², 1] · [2κ/σ, −1/σ, 1 − ‖κ‖²/σ]
+        aug = np.concatenate([2.0 * rot / spec.sigma, np.full((len(rot), 1), -1.0 / spec.sigma),
+                              1.0 - (rot ** 2).sum(1, keepdims=True) / spec.sigma], 1)   # [A·K, 5]
+        self.register_buffer("kernel_aug", torch.tensor(aug, dtype=torch.float32), persistent=False)
         self.weight = nn.Parameter(torch.empty(kernel_points * spec.c_in, spec.c_out))  # [K·Cin, Cout], k-major
         self.bias = nn.Parameter(torch.full((spec.c_out,), 1e-3))
         nn.init.xavier_normal_(self.weight.view(kernel_points, spec.c_in, spec.c_out).permute(2, 1, 0),
@@ -84,14 +87,14 @@ class InterSO3Conv(nn.Module):
         centres = xyz[:, :P2]                                                          # [B, P2, 3]
         flat = knn_gather_index(xyz, centres, nn_)                                     # [B·P2·nn]
         rel = gather_rows(xyz, flat).view(B, P2, nn_, 3) - centres.unsqueeze(2)        # [B, P2, nn, 3]
-        d2 = (rel * rel).sum(-1, keepdim=True) - 2.0 * rel @ self.kernel_t + self.kernel_sq  # [B, P2, nn, A·K]
-        w = F.relu(1.0 - d2 / s.sigma)                                                 # [B, P2, nn, A·K]
+        rel_aug = torch.cat([rel, (rel * rel).sum(-1, keepdim=True), torch.ones_like(rel[..., :1])], -1)  # [B, P2, nn, 5]
+        w = F.relu(self.kernel_aug @ rel_aug.transpose(-1, -2))                       # [B, P2, A·K, nn]
         if feats is None:                                                              # lifting: f ≡ 1
-            g = w.sum(2).view(B, P2, A, K)                                             # [B, P2, A, K]
+            g = w.sum(-1).view(B, P2, A, K)                                            # [B, P2, A, K]
         else:
             C = feats.shape[-1]
             nb = gather_rows(feats, flat).view(B, P2, nn_, A, C)                       # [B, P2, nn, A, C]
-            w = w.view(B, P2, nn_, A, K).permute(0, 1, 3, 4, 2)                        # [B, P2, A, K, nn]
+            w = w.view(B, P2, A, K, nn_)                                               # [B, P2, A, K, nn]
             g = torch.matmul(w, nb.permute(0, 1, 3, 2, 4))                             # [B, P2, A, K, C]
             g = g.reshape(B, P2, A, K * C)                                             # [B, P2, A, K·C]
         return g @ self.weight + self.bias                                             # [B, P2, A, Cout]
@@ -102,7 +105,8 @@ class IntraSO3Conv(nn.Module):
 
     def __init__(self, c_in: int, c_out: int):
         super().__init__()
-        self.register_buffer("table", torch.tensor(icosahedral.INTRA_NEIGHBOURS.reshape(-1), dtype=torch.int64))
+        self.register_buffer("table", torch.tensor(icosahedral.INTRA_NEIGHBOURS.reshape(-1), dtype=torch.int64),
+                             persistent=False)
         self.weight = nn.Parameter(torch.empty(icosahedral.INTRA_NEIGHBOURS.shape[1] * c_in, c_out))  # [12·Cin, Cout]
         self.bias = nn.Parameter(torch.full((c_out,), 1e-3))
         nn.init.xavier_normal_(self.weight.view(12, c_in, c_out).permute(2, 1, 0), gain=nn.init.calculate_gain("relu"))

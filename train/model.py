@@ -58,10 +58,13 @@ def hypothesis_scores(points: torch.Tensor, shape: torch.Tensor, R: torch.Tensor
     ``True`` adds the mean over reconstruction points of the nearest input point (complete input).
     """
     local = (points.unsqueeze(1) - t.unsqueeze(2)) @ R                 # [B, J, N, 3]  = rows of R_jᵀ(x − t_j)
-    d2 = squared_distances(local, shape.unsqueeze(1))                  # [B, J, N, M]
-    score = d2.min(dim=3).values.mean(dim=2)                           # [B, J]
+    # all squared distances in one MatMul: [x, ‖x‖², 1] · [−2z, 1, ‖z‖²]; clamp after the min (same result)
+    a = torch.cat([local, (local * local).sum(-1, keepdim=True), torch.ones_like(local[..., :1])], -1)  # [B, J, N, 5]
+    b = torch.cat([-2.0 * shape, torch.ones_like(shape[..., :1]), (shape * shape).sum(-1, keepdim=True)], -1)  # [B, M, 5]
+    d2 = a @ b.transpose(1, 2).unsqueeze(1)                            # [B, J, N, M]
+    score = d2.min(dim=3).values.clamp_min(0.0).mean(dim=2)            # [B, J]
     if bidirectional:
-        score = score + d2.min(dim=2).values.mean(dim=2)
+        score = score + d2.min(dim=2).values.clamp_min(0.0).mean(dim=2)
     return score
 
 
@@ -97,7 +100,8 @@ class InvariantHead(nn.Module):
         self.point = nn.Linear(h + 3, latent)
         self.norm = nn.BatchNorm1d(latent)
         anchors = icosahedral.ANCHORS                                      # row-form: x @ A_a = (A_aᵀ x)ᵀ
-        self.register_buffer("anchors_cat", torch.tensor(anchors.transpose(1, 0, 2).reshape(3, A * 3), dtype=torch.float32))
+        self.register_buffer("anchors_cat", torch.tensor(anchors.transpose(1, 0, 2).reshape(3, A * 3), dtype=torch.float32),
+                             persistent=False)
 
     def forward(self, xyz, feats):
         """xyz [B, P, 3] (surviving points), feats [B, P, A, C] → z [B, latent]."""
@@ -140,7 +144,8 @@ class EquiPoseNet(nn.Module):
         self.pose_head = PoseHead(c, cfg.head_channels)
         self.inv_head = InvariantHead(c, cfg.head_channels, cfg.latent)
         self.decoder = ShapeDecoder(cfg.latent, cfg.decoder_hidden, cfg.num_canonical_points)
-        self.register_buffer("anchors", torch.tensor(icosahedral.ANCHORS, dtype=torch.float32))   # [A, 3, 3]
+        self.register_buffer("anchors", torch.tensor(icosahedral.ANCHORS, dtype=torch.float32),   # [A, 3, 3]
+                             persistent=False)
         self.cos_theta_max = math.cos(math.radians(cfg.theta_max_deg))
 
     @property
