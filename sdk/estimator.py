@@ -116,7 +116,12 @@ class PoseEstimator:
         if self.static_batch is not None and x.shape[0] != self.static_batch:   # fixed-batch export: loop
             parts = [self.run_model(x[i:i + 1]) for i in range(x.shape[0])]
             return {k: np.concatenate([p[k] for p in parts]) for k in OUTPUT_NAMES}
-        outs = self.session.run(list(OUTPUT_NAMES), {INPUT_NAME: x})
+        try:
+            outs = self.session.run(list(OUTPUT_NAMES), {INPUT_NAME: x})
+        except Exception as e:  # onnxruntime's own exception types (Fail, InvalidArgument, RuntimeException)
+            raise ModelFormatError(f"onnxruntime could not run {self.path.name} on input {x.shape} "
+                                   f"({type(e).__name__}: {str(e).splitlines()[0][:200]}); the model file may be "
+                                   "damaged or not follow the equipose contract — re-export it") from None
         return dict(zip(OUTPUT_NAMES, outs))
 
     def _finish(self, outputs: dict, b: int, prep: "_crop.PreparedPoints", *, prefer: int | None = None,
@@ -209,8 +214,12 @@ class PoseEstimator:
         raising; frame-level errors (depth, intrinsics) still raise.
         """
         if regions is None:
-            boxes = list(boxes) if boxes is not None else None
-            masks = list(masks) if masks is not None else None
+            try:
+                boxes = list(boxes) if boxes is not None else None
+                masks = list(masks) if masks is not None else None
+            except TypeError:
+                raise RegionError("boxes must be a list of (x, y, w, h) and masks a list of [H, W] arrays, one per "
+                                  "object (use predict(..., box=...) for a single object)") from None
             if boxes is not None and masks is not None and len(boxes) != len(masks):
                 raise RegionError(f"{len(boxes)} boxes but {len(masks)} masks; pass one of each per object")
             n = len(boxes) if boxes is not None else (len(masks) if masks is not None else 1)

@@ -195,3 +195,18 @@ def test_cli_reports_bad_input_without_a_traceback(tmp_path, capsys):
     assert "error:" in err and "Traceback" not in err
     assert main(["predict", "--source", str(tmp_path / "nope")]) == 2
     assert "does not exist" in capsys.readouterr().err
+
+
+def test_batch_arguments_and_runtime_failures_are_typed(estimator, scene, monkeypatch):
+    depth, hit = scene
+    with pytest.raises(errors.RegionError):
+        estimator.predict_batch(depth, K_VGA, boxes=5)
+    with pytest.raises(errors.RegionError):
+        estimator.predict_batch(depth, K_VGA, boxes=[(250, 170, 140, 140)], masks=[hit, hit])
+
+    class Broken:
+        def run(self, *a, **k):
+            raise RuntimeError("[ONNXRuntimeError] : 6 : RUNTIME_EXCEPTION : simulated")
+    monkeypatch.setattr(estimator, "session", Broken())
+    with pytest.raises(errors.ModelFormatError, match="could not run"):
+        estimator.predict(depth, K_VGA, mask=hit)
