@@ -210,3 +210,18 @@ def test_batch_arguments_and_runtime_failures_are_typed(estimator, scene, monkey
     monkeypatch.setattr(estimator, "session", Broken())
     with pytest.raises(errors.ModelFormatError, match="could not run"):
         estimator.predict(depth, K_VGA, mask=hit)
+
+
+def test_symmetric_category_reports_axis_and_canonical_rotation(tiny_model, scene):
+    from equipose import PoseEstimator
+    from equipose.hypotheses import canonicalise_rotation
+    depth, hit = scene
+    est = PoseEstimator(tiny_model, threads=1)
+    est.symmetry = "continuous:z"                                              # as if the metadata said so
+    r = est.predict(depth, K_VGA, mask=hit)
+    np.testing.assert_allclose(r.symmetry_axis, r.rotation[:, 2])
+    np.testing.assert_allclose(r.rotation_canonical[:, 2], r.rotation[:, 2], atol=1e-12)
+    np.testing.assert_allclose(r.rotation_canonical, canonicalise_rotation(r.rotation, "continuous:z"))
+    assert r.to_dict()["symmetry"] == "continuous:z" and len(r.to_dict()["symmetry_axis"]) == 3
+    plain = PoseEstimator(tiny_model, threads=1).predict(depth, K_VGA, mask=hit)
+    assert plain.symmetry_axis is None and np.allclose(plain.rotation_canonical, plain.rotation)
