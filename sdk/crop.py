@@ -532,16 +532,17 @@ def auto_masks(depth, K, *, depth_unit="mm", image_size=None, min_depth: float =
     h = x * np.float32(n[0]) + y * np.float32(n[1]) + z * np.float32(n[2]) + np.float32(off)  # [P] height
     above = (h > min_height) & (h < max_height)                                 # [P]
     if table_hull and inl.sum() >= 3:
-        from scipy.spatial import ConvexHull, Delaunay, QhullError
+        from scipy.spatial import ConvexHull, QhullError
         e1 = np.cross(n, [1.0, 0.0, 0.0] if abs(n[0]) < 0.9 else [0.0, 1.0, 0.0])
         e1 /= np.linalg.norm(e1)
         e2 = np.cross(n, e1)                                                    # (e1, e2) span the plane
         table2d = sub[inl] @ np.stack([e1, e2], 1)                              # [T, 2]
         try:
-            hull = Delaunay(table2d[ConvexHull(table2d).vertices])
+            eq = ConvexHull(table2d).equations                                  # [F, 3]: inside ⇔ a·q + b ≤ 0
             idx = np.nonzero(above)[0]
             q2d = np.stack([x[idx], y[idx], z[idx]], 1).astype(np.float64) @ np.stack([e1, e2], 1)  # [Q, 2]
-            above[idx[hull.find_simplex(q2d) < 0]] = False                      # outside the table's outline
+            outside = np.any(q2d @ eq[:, :2].T + eq[:, 2] > 1e-9, axis=1)       # [Q]
+            above[idx[outside]] = False                                         # outside the table's outline
         except QhullError:                                                      # degenerate (collinear) table
             pass
     rows, cols = rows[above], cols[above]
@@ -566,10 +567,12 @@ def auto_masks(depth, K, *, depth_unit="mm", image_size=None, min_depth: float =
     # hollow objects (cups, bowls) split into rim/inside and outside clusters: merge a cluster into a bigger one when
     # more than ``merge_overlap`` of its pixel bounding box lies inside the bigger one's box
     labs, counts = np.unique(labels[labels >= 0], return_counts=True)
-    order = np.argsort(-counts, kind="stable")
+    by_label = np.argsort(labels, kind="stable")                                # points grouped by label
+    starts = np.searchsorted(labels[by_label], labs)                            # [C] first index of each label
+    order = [k for k in np.argsort(-counts, kind="stable") if counts[k] >= min_cluster_points // 10]  # skip specks
     groups = []                                                                 # [[bbox r0, c0, r1, c1], [labels]]
     for k in order:
-        sel = labels == labs[k]
+        sel = by_label[starts[k]:starts[k] + counts[k]]                         # indices of cluster k
         r, c = rows[sel], cols[sel]
         box = np.array([r.min(), c.min(), r.max() + 1, c.max() + 1])
         area = (box[2] - box[0]) * (box[3] - box[1])
