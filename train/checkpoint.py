@@ -21,6 +21,7 @@ import pathlib
 
 import torch
 
+from equipose.errors import ConfigError
 from equipose.presets import ModelConfig
 
 from .model import EquiPoseNet
@@ -53,13 +54,13 @@ def save_checkpoint(path, model: EquiPoseNet, *, category: str, scale: float, sy
 
 
 def load_checkpoint(path) -> dict:
-    """Load a checkpoint dict (CPU tensors). Raises ``ValueError`` with a clear message on a foreign file."""
+    """Load a checkpoint dict (CPU tensors). Raises ``ConfigError`` (a ``ValueError``) on a missing or foreign file."""
     path = pathlib.Path(path)
     if not path.is_file():
-        raise ValueError(f"checkpoint {path} does not exist")
+        raise ConfigError(f"checkpoint {path} does not exist; train one with 'equipose train' (runs/<name>/latest.pt)")
     ckpt = torch.load(path, map_location="cpu", weights_only=False)
     if not isinstance(ckpt, dict) or ckpt.get("format") != CHECKPOINT_FORMAT:
-        raise ValueError(f"{path} is not an equipose checkpoint (format {CHECKPOINT_FORMAT})")
+        raise ConfigError(f"{path} is not an equipose checkpoint (format {CHECKPOINT_FORMAT})")
     return ckpt
 
 
