@@ -156,7 +156,8 @@ def layer_costs(cfg: ModelConfig, partial: bool = True) -> list:
         inter_p = L.c_in * K * L.c_out + L.c_out
         intra_p = L.c_out * INTRA_K * L.c_out + L.c_out
         skip_p = (L.c_in * L.c_out + L.c_out) if i > 0 else 0  # layer 0 lifts constant features: no skip
-        macs = (P2 * nn * A_ROT * K * 3            # kernel correlation distances (matmul form)
+        rot_k = K if K == 13 else A_ROT * K       # symmetric 13-point kernel: weights computed once, unrotated
+        macs = (P2 * nn * rot_k * 5                # hat weights (one augmented matmul)
                 + P2 * A_ROT * K * nn * L.c_in      # neighbour aggregation
                 + P2 * A_ROT * K * L.c_in * L.c_out  # inter dense matmul
                 + P2 * A_ROT * INTRA_K * L.c_out * L.c_out  # intra dense matmul

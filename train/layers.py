@@ -63,13 +63,27 @@ class InterSO3Conv(nn.Module):
     out[b, p, a, o] = Σ_{n,k,c} relu(1 − ‖x_n − x_p − A_a·κ_k‖² / σ) · f[b, n, a, c] · W[k, c, o]  (+ bias[o])
     over the ``nn`` nearest neighbours n of the centre p. The centres are the first ``points_out`` input points.
     The hat weights vanish beyond ``kernel_radius + √σ`` (≈1.41·radius), which bounds the neighbourhood.
+
+    Symmetric kernels (13 = centre + icosahedron vertices) take an exact fast path: the group permutes the kernel
+    points, A_a·κ_k = κ_{π_a(k)}, so the hat weights are computed once unrotated, aggregated with one GEMM per centre
+    (U[k'] = Σ_n w[k', n] · f[n, :, :] over all rotations at once) and routed to (a, k) by a constant Gather.
     """
 
     def __init__(self, spec: LayerSpec, kernel_points: int):
         super().__init__()
         self.spec, self.k = spec, kernel_points
         kern = icosahedral.kernel_points(kernel_points, spec.kernel_radius)           # [K, 3]
-        rot = np.einsum("aij,kj->aki", icosahedral.ANCHORS, kern).reshape(-1, 3)     # [A·K, 3]
+        self.symmetric = kernel_points == 13
+        if self.symmetric:
+            # π_a(k): centre stays, vertex v goes to VERTEX_PERMUTATION[a, v]
+            perm = np.concatenate([np.zeros((A, 1), np.int64), icosahedral.VERTEX_PERMUTATION + 1], 1)  # [A, K]
+            assert np.allclose(np.einsum("aij,kj->aki", icosahedral.ANCHORS, kern), kern[perm], atol=1e-9)
+            self.register_buffer("route_lift", torch.tensor(perm.reshape(-1), dtype=torch.int64), persistent=False)
+            route = perm * A + np.arange(A)[:, None]                                   # [A, K] → row of U [K·A]
+            self.register_buffer("route", torch.tensor(route.reshape(-1), dtype=torch.int64), persistent=False)
+            rot = kern                                                                 # [K, 3] unrotated
+        else:
+            rot = np.einsum("aij,kj->aki", icosahedral.ANCHORS, kern).reshape(-1, 3)  # [A·K, 3]
         # hat weights as one MatMul: 1 − ‖r − κ‖²/σ = [r, ‖r‖², 1] · [2κ/σ, −1/σ, 1 − ‖κ‖²/σ]
         aug = np.concatenate([2.0 * rot / spec.sigma, np.full((len(rot), 1), -1.0 / spec.sigma),
                               1.0 - (rot ** 2).sum(1, keepdims=True) / spec.sigma], 1)   # [A·K, 5]
@@ -88,7 +102,16 @@ class InterSO3Conv(nn.Module):
         flat = knn_gather_index(xyz, centres, nn_)                                     # [B·P2·nn]
         rel = gather_rows(xyz, flat).view(B, P2, nn_, 3) - centres.unsqueeze(2)        # [B, P2, nn, 3]
         rel_aug = torch.cat([rel, (rel * rel).sum(-1, keepdim=True), torch.ones_like(rel[..., :1])], -1)  # [B, P2, nn, 5]
-        w = F.relu(self.kernel_aug @ rel_aug.transpose(-1, -2))                       # [B, P2, A·K, nn]
+        w = F.relu(self.kernel_aug @ rel_aug.transpose(-1, -2))                       # [B, P2, A·K | K, nn]
+        if self.symmetric:
+            if feats is None:                                                          # lifting: f ≡ 1
+                g = w.sum(-1).index_select(2, self.route_lift).view(B, P2, A, K)       # [B, P2, A, K]
+            else:
+                C = feats.shape[-1]
+                nb = gather_rows(feats, flat).view(B, P2, nn_, A * C)                  # [B, P2, nn, A·C]
+                u = torch.matmul(w, nb).view(B, P2, K * A, C)                          # [B, P2, K·A, C]
+                g = u.index_select(2, self.route).reshape(B, P2, A, K * C)             # [B, P2, A, K·C]
+            return g @ self.weight + self.bias                                         # [B, P2, A, Cout]
         if feats is None:                                                              # lifting: f ≡ 1
             g = w.sum(-1).view(B, P2, A, K)                                            # [B, P2, A, K]
         else:

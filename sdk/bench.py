@@ -1,0 +1,280 @@
+"""CPU latency benchmark of the whole pipeline (crop → FPS ordering → inference → selection) per backend.
+
+Convention:
+    Input: one 640×480 depth frame (the bundled PCL mug sample, uint16 mm) and ``objects`` copies of its object box
+    (objects per frame = model batch). Times are wall-clock milliseconds (``time.perf_counter``) after warm-up;
+    "end-to-end" is one ``predict``-equivalent call for all objects of the frame, per object figures divide by it.
+    Backends (each measured in a fresh subprocess, so ``peak_rss_mb`` is that backend's own peak resident memory):
+        onnxruntime-fp32  the model file through ``PoseEstimator``
+        onnxruntime-int8  its ``.int8.onnx`` sibling (made with ``equipose export --int8``; quantised on the fly when
+                          the train extra is installed and no sibling exists)
+        torch             the same pre/post-processing around torch eager ``EquiPoseNet`` with the model's preset;
+                          weights: ``--checkpoint`` if given, else the export seed of a random-init model (identical
+                          weights), else random weights of the same architecture (timing only; flagged)
+        icp60             the same crop/ordering, then ICP-60 (60 icosahedral starts, 30 iterations, scipy cKDTree)
+                          against the model's canonical shape as template, best residual selected
+    The "bound" is the model's analytic MACs divided by the measured single-MatMul peak (GMAC/s) of this CPU with the
+    same thread count: the time a perfectly MatMul-bound implementation would need.
+"""
+from __future__ import annotations
+
+import json
+import os
+import resource
+import statistics
+import subprocess
+import sys
+import time
+
+import numpy as np
+
+__all__ = ["BACKENDS", "run_backend", "run_benchmark", "matmul_peak_gmacs", "format_table", "percentiles"]
+
+BACKENDS = ("onnxruntime-fp32", "onnxruntime-int8", "torch", "icp60")
+STAGES = ("crop", "fps", "inference", "selection")
+
+
+def percentiles(ms: list) -> dict:
+    """p50/p95/max of a list of milliseconds."""
+    a = np.asarray(ms, np.float64)
+    return {"p50_ms": float(np.percentile(a, 50)), "p95_ms": float(np.percentile(a, 95)), "max_ms": float(a.max())}
+
+
+def _peak_rss_mb() -> float:
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0   # Linux: kilobytes
+
+
+def _sample_frame():
+    from equipose.samples import sample_objects, sample_path
+    from equipose.sources import FolderSource
+    frame = next(iter(FolderSource(sample_path())))
+    return frame, sample_objects()[0]["box"]
+
+
+def matmul_peak_gmacs(threads: int, size: int = 512, runs: int = 20) -> float:
+    """Best-of-``runs`` GMAC/s of one [size×size]·[size×size] float32 MatMul in onnxruntime (``threads`` threads).
+
+    Builds the one-node graph with ``onnx`` when available; otherwise measures numpy's matmul (noted by the caller).
+    """
+    a = np.random.default_rng(0).standard_normal((size, size)).astype(np.float32)
+    try:
+        import onnx
+        from onnx import TensorProto, helper
+        import onnxruntime as ort
+        g = helper.make_graph([helper.make_node("MatMul", ["a", "b"], ["c"])], "mm",
+                              [helper.make_tensor_value_info("a", TensorProto.FLOAT, [size, size]),
+                               helper.make_tensor_value_info("b", TensorProto.FLOAT, [size, size])],
+                              [helper.make_tensor_value_info("c", TensorProto.FLOAT, [size, size])])
+        m = helper.make_model(g, opset_imports=[helper.make_opsetid("", 17)])
+        m.ir_version = 8
+        so = ort.SessionOptions()
+        so.intra_op_num_threads = threads
+        s = ort.InferenceSession(m.SerializeToString(), so, providers=["CPUExecutionProvider"])
+        fn = lambda: s.run(None, {"a": a, "b": a})  # noqa: E731
+    except ImportError:
+        fn = lambda: a @ a  # noqa: E731
+    fn()
+    best = min(_timed(fn) for _ in range(runs))
+    return size ** 3 / best / 1e9 * 1e3
+
+
+def _timed(fn) -> float:
+    t = time.perf_counter()
+    fn()
+    return (time.perf_counter() - t) * 1e3
+
+
+# ----------------------------------------------------------------------------------------------------------------------
+# One backend, in this process
+
+def _int8_path(model_path: str) -> str:
+    from pathlib import Path
+    p = Path(model_path)
+    sib = p.with_name(p.stem + ".int8.onnx")
+    if sib.is_file():
+        return str(sib)
+    try:
+        from equipose.export.quantize import quantize_int8
+    except ImportError:
+        raise RuntimeError(f"no int8 model next to {p.name} ({sib.name}); make one with 'equipose export --int8' "
+                           "or install the train extra") from None
+    import tempfile
+    out = Path(tempfile.mkdtemp()) / sib.name
+    quantize_int8(str(p), str(out))
+    return str(out)
+
+
+def _torch_forward(est, checkpoint: str | None):
+    """A callable model_points [B, N, 3] → outputs dict (numpy) with torch eager, plus a note on the weights."""
+    import torch
+
+    from equipose.presets import ModelConfig
+    from equipose.train.model import EquiPoseNet
+
+    training = est.metadata.get("training") or {}
+    if checkpoint:
+        from equipose.train.checkpoint import model_from_checkpoint
+        model, _ = model_from_checkpoint(checkpoint)
+        note = "checkpoint weights"
+    else:
+        seed = training.get("seed") if est.random_init else None
+        torch.manual_seed(int(seed or 0))
+        model = EquiPoseNet(ModelConfig.from_dict(est.metadata["model_config"]), partial=est.metadata["partial"])
+        note = "same weights (export seed)" if seed is not None else "same architecture, random weights (timing only)"
+    model.eval()
+
+    def fwd(x):
+        with torch.no_grad():
+            out = model(torch.from_numpy(np.ascontiguousarray(x, np.float32)))
+        return {k: v.numpy() for k, v in out.items()}
+
+    return fwd, note
+
+
+def run_backend(backend: str, model_path: str, threads: int = 2, objects: int = 1, runs: int = 100,
+                warmup: int = 5, checkpoint: str | None = None) -> dict:
+    """Measure one backend in this process. Returns a row dict (end-to-end and per-stage percentiles, fps, rss)."""
+    from equipose import PoseEstimator
+    from equipose import crop as C
+
+    if backend not in BACKENDS:
+        raise ValueError(f"backend must be one of {BACKENDS}, got {backend!r}")
+    path = _int8_path(model_path) if backend == "onnxruntime-int8" else model_path
+    est = PoseEstimator(path, threads=threads)
+    frame, box = _sample_frame()
+    boxes = [box] * objects
+    note, parity = "", None
+    if backend == "torch":
+        import torch
+        torch.set_num_threads(threads)
+        forward, note = _torch_forward(est, checkpoint)
+    elif backend == "icp60":
+        from equipose.train.icp import icp60
+
+    def one_frame() -> dict:
+        st = dict.fromkeys(STAGES, 0.0)
+        t0 = time.perf_counter()
+        depth_m = C.depth_to_metres(frame.depth, frame.depth_unit)
+        K = C.check_intrinsics(frame.K, depth_m.shape, frame.image_size)
+        plane = C.find_support_plane(depth_m, K)
+        preps = []
+        for b in boxes:
+            t1 = time.perf_counter()
+            c = C.crop_points(depth_m, K, box=b, depth_unit="m", check_plausible=False, support_plane=plane,
+                              remove_support_plane=plane is not None)
+            t2 = time.perf_counter()
+            preps.append(C.prepare_points(c.points, est.num_points, est.scale))
+            st["fps"] += (time.perf_counter() - t2) * 1e3
+            st["crop"] += (t2 - t1) * 1e3
+        x = np.stack([p.model_points for p in preps])                          # [B, N, 3]
+        t3 = time.perf_counter()
+        if backend == "icp60":
+            outs = [icp60(p.model_points, template, iters=30, bidirectional=not est.metadata["partial"]) for p in preps]
+            st["inference"] = (time.perf_counter() - t3) * 1e3                  # best of 60 inside icp60
+            t4 = time.perf_counter()
+            _ = [(R, p.to_metres(t)) for (R, t, _res), p in zip(outs, preps)]
+            st["selection"] = (time.perf_counter() - t4) * 1e3
+        else:
+            outputs = forward(x) if backend == "torch" else est.run_model(x)
+            st["inference"] = (time.perf_counter() - t3) * 1e3
+            t4 = time.perf_counter()
+            for b, p in enumerate(preps):
+                est._finish(outputs, b, p)
+            st["selection"] = (time.perf_counter() - t4) * 1e3
+        st["total"] = (time.perf_counter() - t0) * 1e3
+        st["crop"] = st["total"] - st["fps"] - st["inference"] - st["selection"]   # incl. frame validation + plane
+        return st
+
+    if backend == "icp60":                                                      # template: the model's own shape
+        c0 = est.crop(frame.depth, frame.K, box=box, depth_unit=frame.depth_unit, image_size=frame.image_size)
+        p0 = C.prepare_points(c0.points, est.num_points, est.scale)
+        template = est.run_model(p0.model_points[None])["canonical_shape"][0].astype(np.float64)
+    if backend == "torch":                                                      # parity with the ONNX file
+        c0 = est.crop(frame.depth, frame.K, box=box, depth_unit=frame.depth_unit, image_size=frame.image_size)
+        x0 = C.prepare_points(c0.points, est.num_points, est.scale).model_points[None]
+        a, b = forward(x0), est.run_model(x0)
+        parity = float(max(np.abs(a[k] - b[k]).max() for k in ("hypothesis_rotations", "hypothesis_scores")))
+    for _ in range(warmup):
+        one_frame()
+    samples = [one_frame() for _ in range(runs)]
+    row = {"backend": backend, "model": os.path.basename(path), **percentiles([s["total"] for s in samples])}
+    row["fps"] = 1e3 / row["p50_ms"] * objects
+    row["per_object_p50_ms"] = row["p50_ms"] / objects
+    row["peak_rss_mb"] = _peak_rss_mb()
+    row["model_mb"] = os.path.getsize(path) / 2 ** 20 if backend.startswith("onnx") else None
+    row["stages"] = {k: percentiles([s[k] for s in samples]) for k in STAGES}
+    row["runs"], row["threads"], row["objects"] = runs, threads, objects
+    if note:
+        row["note"] = note
+    if parity is not None:
+        row["parity_max_abs"] = parity
+    return row
+
+
+# ----------------------------------------------------------------------------------------------------------------------
+# Orchestration: one subprocess per backend
+
+def _run_isolated(backend, model_path, threads, objects, runs, warmup, checkpoint) -> dict:
+    cmd = [sys.executable, "-m", "equipose.bench", backend, model_path, str(threads), str(objects), str(runs),
+           str(warmup), checkpoint or ""]
+    env = dict(os.environ, OMP_NUM_THREADS=str(threads), DEPTHAI_LEVEL="error")
+    p = subprocess.run(cmd, capture_output=True, text=True, env=env)
+    if p.returncode != 0:
+        last = (p.stderr.strip().splitlines() or ["(no output)"])[-1]
+        return {"backend": backend, "error": last}
+    return json.loads(p.stdout.strip().splitlines()[-1])
+
+
+def run_benchmark(model_path: str, backends=BACKENDS, threads: int = 2, objects: int = 1, runs: int = 100,
+                  warmup: int = 5, checkpoint: str | None = None, isolate: bool = True) -> dict:
+    """All requested backends on the same frame; returns ``{"model", "threads", "points", "objects", "rows", ...}``."""
+    from equipose import PoseEstimator
+    from equipose.presets import ModelConfig, total_macs
+
+    est = PoseEstimator(model_path, threads=threads)
+    cfg = ModelConfig.from_dict(est.metadata["model_config"])
+    macs = total_macs(cfg, partial=bool(est.metadata["partial"]))
+    peak = matmul_peak_gmacs(threads)
+    rows = []
+    for b in backends:
+        row = (_run_isolated if isolate else lambda *a: run_backend(*a))(b, str(model_path), threads, objects, runs,
+                                                                         warmup, checkpoint)
+        rows.append(row)
+        print(f"  measured {b}: " + (f"p50 {row['p50_ms']:.1f} ms" if "p50_ms" in row else row["error"]),
+              file=sys.stderr, flush=True)
+    return {"model": str(model_path), "preset": cfg.name, "threads": threads, "points": est.num_points,
+            "objects": objects, "macs": macs, "matmul_peak_gmacs": peak, "bound_ms": macs * objects / peak / 1e6,
+            "rows": rows}
+
+
+def format_table(result: dict) -> str:
+    """A text table of ``run_benchmark``'s result, with speed ratios against onnxruntime-fp32."""
+    rows = result["rows"]
+    ref = next((r for r in rows if r.get("backend") == "onnxruntime-fp32" and "p50_ms" in r), None)
+    lines = [f"model {result['model']} (preset {result['preset']}, N={result['points']}, "
+             f"{result['macs'] / 1e9:.3f} GMAC/object), {result['threads']} thread(s), {result['objects']} object(s)/frame",
+             f"MatMul peak {result['matmul_peak_gmacs']:.1f} GMAC/s → bound {result['bound_ms']:.2f} ms/frame",
+             f"{'backend':<18} {'p50 ms':>8} {'p95 ms':>8} {'max ms':>8} {'FPS':>8} {'RSS MB':>8} {'size MB':>8} "
+             f"{'× fp32':>7}  {'crop':>6} {'fps':>6} {'infer':>7} {'select':>6}"]
+    for r in rows:
+        if "error" in r:
+            lines.append(f"{r['backend']:<18} unavailable: {r['error']}")
+            continue
+        ratio = r["p50_ms"] / ref["p50_ms"] if ref else float("nan")
+        s = r["stages"]
+        size = f"{r['model_mb']:.2f}" if r.get("model_mb") else "-"
+        lines.append(f"{r['backend']:<18} {r['p50_ms']:>8.2f} {r['p95_ms']:>8.2f} {r['max_ms']:>8.2f} {r['fps']:>8.1f} "
+                     f"{r['peak_rss_mb']:>8.0f} {size:>8} {ratio:>7.2f}  {s['crop']['p50_ms']:>6.2f} "
+                     f"{s['fps']['p50_ms']:>6.2f} {s['inference']['p50_ms']:>7.2f} {s['selection']['p50_ms']:>6.2f}"
+                     + (f"   ({r['note']})" if r.get("note") else ""))
+    return "\n".join(lines)
+
+
+def _worker_main(argv):
+    backend, model, threads, objects, runs, warmup, ckpt = argv
+    row = run_backend(backend, model, int(threads), int(objects), int(runs), int(warmup), ckpt or None)
+    sys.stdout.write(json.dumps(row) + "\n")
+
+
+if __name__ == "__main__":
+    _worker_main(sys.argv[1:])
