@@ -161,7 +161,7 @@ def run_backend(backend: str, model_path: str, threads: int = 2, objects: int = 
         for b in boxes:
             t1 = time.perf_counter()
             c = C.crop_points(depth_m, K, box=b, depth_unit="m", check_plausible=False, support_plane=plane,
-                              remove_support_plane=plane is not None)
+                              remove_support_plane=plane is not None, **est.crop_options)
             t2 = time.perf_counter()
             preps.append(C.prepare_points(c.points, est.num_points, est.scale))
             st["fps"] += (time.perf_counter() - t2) * 1e3

@@ -75,6 +75,8 @@ class PoseEstimator:
         self.calibration_rotation = np.asarray(self.metadata["calibration_rotation"], np.float64)     # [3, 3]
         self.calibration_translation = np.asarray(self.metadata["calibration_translation"], np.float64)  # [3]
         self.crop_options = dict(crop_options or {})
+        # the model reads N FPS-ordered points: a crop of 4·N (≥ 1024) keeps FPS coverage and bounds crop/FPS cost
+        self.crop_options.setdefault("max_points", max(1024, 4 * self.num_points))
         self.top_k = int(top_k)
         self._check_io(path.name)
 
