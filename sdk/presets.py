@@ -128,6 +128,38 @@ register_preset(ModelConfig(
 ))
 
 
+# CPU edge candidates (issue 6): symmetric 13-point kernels (exact fast path), 256 input points, narrow widths.
+register_preset(ModelConfig(
+    name="edge-a",
+    num_points=256,
+    channels=(16, 16, 32, 32),
+    strides=(2, 1, 2, 1),
+    radii=(0.16, 0.2263, 0.2263, 0.32),
+    neighbours=(16, 12, 16, 12),
+    kernel_points=13,
+    head_channels=64,
+    latent=64,
+    decoder_hidden=(128, 128),
+    num_canonical_points=256,
+    description="Edge candidate A: 256 points, 4 layers 16→32, 13 symmetric kernel points.",
+))
+
+register_preset(ModelConfig(
+    name="edge-b",
+    num_points=256,
+    channels=(16, 16, 32, 32, 64, 64),
+    strides=(2, 1, 2, 1, 2, 1),
+    radii=(0.1131, 0.16, 0.16, 0.2263, 0.2263, 0.32),
+    neighbours=(16, 12, 16, 12, 16, 12),
+    kernel_points=13,
+    head_channels=64,
+    latent=64,
+    decoder_hidden=(128, 128),
+    num_canonical_points=256,
+    description="Edge candidate B: 256 points, 6 layers 16→64, 13 symmetric kernel points.",
+))
+
+
 def list_presets() -> list:
     return sorted(PRESETS)
 
