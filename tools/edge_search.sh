@@ -10,7 +10,7 @@ for P in $CANDS; do
   rm -rf "$OUT"; mkdir -p "$OUT"
   echo "== $P: train ${MIN} min" >&2
   timeout -s INT "${MIN}m" $EQ train --category airplane --mode partial --preset "$P" --steps 1000000 --views 4 \
-      --out "$OUT" --ckpt-every 5 --val-every 1000000 --threads 1 > "$OUT/train.log" 2>&1
+      --out "$OUT" --ckpt-every 2 --val-every 1000000 --threads 1 > "$OUT/train.log" 2>&1
   $EQ calibrate --checkpoint "$OUT/latest.pt" --num 256 > "$OUT/calibrate.log" 2>&1
   $EQ eval --checkpoint "$OUT/latest.pt" --category airplane --mode partial --limit 20 --icp-templates 1 \
       --json "docs/results/edge/$P.json" > "$OUT/eval.log" 2>&1
