@@ -31,33 +31,40 @@ def so3_mean(Rs: np.ndarray) -> np.ndarray:
 
 
 def ransac_rotation(Rs: np.ndarray, iters: int = 100, sample: int = 5, thresh_deg: float = 5.0,
-                    seed: int = 0) -> tuple:
-    """Consensus rotation of [K, 3, 3]: (mean of the best inlier set [3, 3], inlier mask [K]).
+                    coarse_deg: float = 30.0, seed: int = 0) -> tuple:
+    """Consensus rotation of [K, 3, 3]: (chordal mean of the final inliers [3, 3], inlier mask [K]).
 
-    Each iteration averages ``sample`` random rotations; inliers are within ``thresh_deg`` of it; the best inlier set
-    (largest) is refit by the chordal mean and its inliers recomputed (the reference kept the 5-sample hypothesis).
+    Hypotheses: ``iters`` means of ``sample`` random rotations plus up to 2·``iters`` single rotations; the one with
+    the most inliers within ``coarse_deg``
+    wins (the densest mode, also for a coarsely trained network whose offsets spread over more than 5°); it is then
+    refit on its inliers while the threshold shrinks to ``thresh_deg`` (5°, spec §6). The reference kept the
+    5-sample hypothesis without a refit. ``coarse_deg = thresh_deg`` gives the plain single-threshold RANSAC.
     """
     Rs = np.asarray(Rs, np.float64)
     K = len(Rs)
     if K == 0:
         raise ConfigError("calibration needs at least one prediction")
     rng = np.random.default_rng(seed)
-    best = None
-    for _ in range(iters):
-        pick = rng.choice(K, size=min(sample, K), replace=False)
-        hyp = so3_mean(Rs[pick])
-        inl = rotation_angle_deg(Rs, hyp) < thresh_deg
+    coarse = max(coarse_deg, thresh_deg)
+    best, best_hyp = None, None
+    hyps = [so3_mean(Rs[rng.choice(K, size=min(sample, K), replace=False)]) for _ in range(iters)]
+    hyps += list(Rs[rng.choice(K, size=min(K, 2 * iters), replace=False)])   # single-sample hypotheses find modes
+    for hyp in hyps:
+        inl = rotation_angle_deg(Rs, hyp) < coarse
         if best is None or inl.sum() > best.sum():
-            best = inl
-    if not best.any():
-        best = np.ones(K, bool)
-    for _ in range(3):                                    # refit on inliers until stable
-        mean = so3_mean(Rs[best])
-        new = rotation_angle_deg(Rs, mean) < thresh_deg
-        if not new.any() or (new == best).all():
-            break
-        best = new
-    return so3_mean(Rs[best]), best
+            best, best_hyp = inl, hyp
+    mean = best_hyp
+    for th in np.geomspace(coarse, thresh_deg, 4) if coarse > thresh_deg else [thresh_deg]:
+        for _ in range(5):                                # refit on inliers until stable
+            inl = rotation_angle_deg(Rs, mean) < th
+            if not inl.any():
+                break
+            new = so3_mean(Rs[inl])
+            if rotation_angle_deg(new, mean) < 1e-6:
+                break
+            mean = new
+    inl = rotation_angle_deg(Rs, mean) < thresh_deg
+    return mean, inl
 
 
 def ransac_axis(us: np.ndarray, iters: int = 100, sample: int = 5, thresh_deg: float = 5.0, unsigned: bool = False,
