@@ -1,0 +1,51 @@
+"""``equipose bench``: every backend runs on the bundled frame and the JSON has the documented fields (no timing
+thresholds: speed goals are met in benchmarks, not in tests)."""
+import json
+import subprocess
+import sys
+
+import pytest
+
+from equipose.bench import format_table, percentiles, run_benchmark
+
+
+def test_percentiles():
+    p = percentiles([1.0, 2.0, 3.0, 4.0, 100.0])
+    assert p["p50_ms"] == 3.0 and p["max_ms"] == 100.0 and 4.0 < p["p95_ms"] < 100.0
+
+
+def test_bench_all_backends(tiny_model, tmp_path):
+    pytest.importorskip("torch")
+    res = run_benchmark(str(tiny_model), ("onnxruntime-fp32", "onnxruntime-int8", "torch", "icp60"), threads=1,
+                        objects=2, runs=3, warmup=1)
+    rows = {r["backend"]: r for r in res["rows"]}
+    assert set(rows) == {"onnxruntime-fp32", "onnxruntime-int8", "torch", "icp60"}
+    for r in rows.values():
+        assert "error" not in r, r
+        assert 0 < r["p50_ms"] <= r["p95_ms"] <= r["max_ms"]
+        assert r["peak_rss_mb"] > 0 and r["fps"] > 0 and r["objects"] == 2
+        assert set(r["stages"]) == {"crop", "fps", "inference", "selection"}
+    # the torch backend rebuilt the export's weights from its seed: same outputs as the ONNX file
+    assert rows["torch"]["note"].startswith("same weights") and rows["torch"]["parity_max_abs"] < 1e-3
+    assert res["bound_ms"] > 0 and res["macs"] > 0
+    table = format_table(res)
+    assert "onnxruntime-int8" in table and "× fp32" in table
+
+
+def test_bench_cli_json(tiny_model, tmp_path):
+    out = tmp_path / "b.json"
+    p = subprocess.run([sys.executable, "-m", "equipose.cli", "bench", "--model", str(tiny_model), "--threads", "1",
+                        "--runs", "2", "--warmup", "1", "--compare", "icp", "--json", str(out)],
+                       capture_output=True, text=True)
+    assert p.returncode == 0, p.stderr
+    data = json.loads(out.read_text())
+    assert data["threads"] == 1 and data["points"] == 256
+    assert [r["backend"] for r in data["rows"]] == ["onnxruntime-fp32", "icp60"]
+    for r in data["rows"]:
+        assert {"backend", "p50_ms", "p95_ms", "max_ms", "fps", "peak_rss_mb"} <= set(r)
+
+
+def test_bench_cli_rejects_bad_compare(tiny_model):
+    p = subprocess.run([sys.executable, "-m", "equipose.cli", "bench", "--model", str(tiny_model), "--compare", "gpu"],
+                       capture_output=True, text=True)
+    assert p.returncode == 2 and "--compare" in p.stderr
