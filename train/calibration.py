@@ -147,7 +147,7 @@ def calibrate_offsets(dR: np.ndarray, dt: np.ndarray, symmetry: str = "none", un
     t, tin = ransac_translation(dt, seed=seed)
     return {"rotation": R.tolist(), "translation": t.tolist(), "inlier_fraction": float(inl.mean()),
             "translation_inlier_fraction": float(tin.mean()), "n": int(len(dR)), "symmetry": symmetry,
-            "method": "ransac-5deg-refit"}
+            "method": "ransac-mode30-refit5"}
 
 
 def apply_calibration(R: np.ndarray, t: np.ndarray, calibration: dict | None) -> tuple:
