@@ -57,6 +57,8 @@ class PoseEstimator:
             opts.intra_op_num_threads = int(threads)
             opts.inter_op_num_threads = 1
         opts.log_severity_level = 3
+        # no busy-waiting worker threads between runs: they would steal the cores from crop/FPS of the next frame
+        opts.add_session_config_entry("session.intra_op.allow_spinning", "0")
         try:
             self.session = ort.InferenceSession(str(path), sess_options=opts, providers=["CPUExecutionProvider"])
         except Exception as e:  # onnxruntime raises its own (pybind) exception types for unreadable files

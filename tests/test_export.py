@@ -21,7 +21,7 @@ from equipose.train.model import EquiPoseNet  # noqa: E402
 
 OUTPUTS = ("canonical_shape", "hypothesis_rotations", "hypothesis_translations", "hypothesis_scores")
 # Every op the exporter may emit. Deliberately absent: Loop, Scan, If, GatherND, GatherElements, custom domains.
-ALLOWED_OPS = {
+ALLOWED_OPS = {"InstanceNormalization", 
     "Add", "BatchNormalization", "Cast", "Clip", "Concat", "Constant", "Div", "Expand", "Gather", "Gemm",
     "LeakyRelu", "MatMul", "Max", "Min", "Mul", "Neg", "Pow", "Range", "Reciprocal", "ReduceL2", "ReduceMax",
     "ReduceMean", "ReduceMin", "ReduceSum", "Relu", "Reshape", "Shape", "Sigmoid", "Slice", "Sqrt", "Squeeze", "Sub",

@@ -52,9 +52,9 @@ def gather_rows(x: torch.Tensor, flat_index: torch.Tensor) -> torch.Tensor:
 
 def instance_norm(x: torch.Tensor, eps: float = 1e-5) -> torch.Tensor:
     """Normalise each (sample, channel) over points and rotations. ``x`` [B, P, A, C] → same shape."""
-    mean = x.mean(dim=(1, 2), keepdim=True)                              # [B, 1, 1, C]
-    var = (x - mean).pow(2).mean(dim=(1, 2), keepdim=True)               # [B, 1, 1, C]
-    return (x - mean) * torch.rsqrt(var + eps)
+    B, P, A_, C = x.shape
+    y = F.instance_norm(x.reshape(B, P * A_, C).transpose(1, 2), eps=eps)  # [B, C, P·A]  (ONNX InstanceNormalization)
+    return y.transpose(1, 2).reshape(B, P, A_, C)
 
 
 class InterSO3Conv(nn.Module):
