@@ -160,6 +160,13 @@ register_preset(ModelConfig(
 ))
 
 
+# The chosen edge preset (docs/benchmarks.md): edge-a's configuration — ≤ 20 ms end-to-end per object on 2 cores.
+register_preset(PRESETS["edge-a"].replace(
+    name="edge",
+    description="CPU edge preset (= edge-a): 256 points, 4 layers 16→32, 13 symmetric kernel points; see docs/benchmarks.md.",
+))
+
+
 def list_presets() -> list:
     return sorted(PRESETS)
 
