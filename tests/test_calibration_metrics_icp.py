@@ -115,3 +115,29 @@ def test_icp60_recovers_known_rotation(bidirectional):
         Rh, th, res = icp60(obs, tmpl, iters=30, bidirectional=bidirectional)
         assert rotation_angle_deg(Rh, R) < 1.0
         assert np.linalg.norm(th - t) < 0.01
+
+
+def test_calibrate_model_rotated_inputs_recover_offset():
+    """calibrate_model(..., rotations=...) undoes the presented rotation: a perfectly equivariant fake model whose
+    frame is offset by δR from the category frame yields δR back (within 1°)."""
+    torch = pytest.importorskip("torch")
+    from equipose.geometry import random_rotations, rotation_angle_deg
+    from equipose.train.icp import kabsch
+    from equipose.train.inference import calibrate_model
+
+    rng = np.random.default_rng(3)
+    ref = rng.normal(size=(64, 3)) * [0.3, 0.2, 0.1]                       # category-frame reference cloud
+    dR = random_rotations(1, seed=11)[0]
+
+    class Fake(torch.nn.Module):
+        def forward(self, x):                                              # x [B, N, 3] = ref rotated by R_in
+            xs = x.double().numpy()
+            R_in, _ = kabsch(np.repeat(ref[None], len(xs), 0), xs)          # [B, 3, 3]
+            R = torch.from_numpy(np.einsum("bij,jk->bik", R_in, dR)).float()  # prediction R_in · δR
+            B = len(xs)
+            return {"hypothesis_rotations": R[:, None].repeat(1, 60, 1, 1), "hypothesis_translations":
+                    torch.zeros(B, 60, 3), "hypothesis_scores": torch.zeros(B, 60)}
+
+    canon = np.repeat(ref[None], 12, 0)
+    cal = calibrate_model(Fake(), canon, rotations=random_rotations(12, seed=5))
+    assert rotation_angle_deg(np.asarray(cal["rotation"]), dR) < 1.0

@@ -24,6 +24,9 @@ def add_arguments(p) -> None:
     p.add_argument("--data-root", dest="data_root")
     p.add_argument("--cache-dir", dest="cache_dir")
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--rotated", action="store_true",
+                   help="present the category-frame inputs in seeded random rotations (undone on the predictions) "
+                        "instead of the identity pose only")
 
 
 def run(args) -> int:
@@ -38,8 +41,14 @@ def run(args) -> int:
     rng = np.random.default_rng(args.seed)
     idx = rng.choice(len(ds), size=min(args.num, len(ds)), replace=False)
     canon = np.stack([ds.sample(int(i), np.random.default_rng([args.seed, int(i)]))["canonical"] for i in idx])
-    cal = calibrate_model(model, canon, symmetry=ckpt["symmetry"], unsigned_axis=(category == "can"), seed=args.seed)
-    cal["inputs"] = f"{len(idx)} category-frame {category}/{mode} training samples"
+    rots = None
+    if args.rotated:
+        from equipose.geometry import random_rotations
+        rots = random_rotations(len(canon), seed=args.seed)
+    cal = calibrate_model(model, canon, symmetry=ckpt["symmetry"], unsigned_axis=(category == "can"), seed=args.seed,
+                          rotations=rots)
+    cal["inputs"] = (f"{len(idx)} category-frame {category}/{mode} training samples"
+                     + (" in seeded random rotations" if args.rotated else ""))
     ckpt["calibration"] = cal
     out = args.out or args.checkpoint
     save_checkpoint(out, model, category=ckpt["category"], scale=ckpt["scale"], symmetry=ckpt["symmetry"],

@@ -33,7 +33,18 @@ def predict_torch(model, points: np.ndarray, batch_size: int = 16, device="cpu")
 
 
 def calibrate_model(model, canonical_points: np.ndarray, symmetry: str = "none", unsigned_axis: bool = False,
-                    batch_size: int = 16, device="cpu", seed: int = 0) -> dict:
-    """Calibration dict from category-frame inputs [K, N, 3] (model units): RANSAC over the selected poses."""
-    dR, dt, _ = predict_torch(model, canonical_points, batch_size, device)
+                    batch_size: int = 16, device="cpu", seed: int = 0, rotations: np.ndarray | None = None) -> dict:
+    """Calibration dict from category-frame inputs [K, N, 3] (model units): RANSAC over the selected poses.
+
+    ``rotations`` [K, 3, 3] (optional): present input k rotated by R_k about the origin (x ↦ R_k x) and undo it on the
+    prediction, δR_k = R_kᵀ R_pred, δt_k = R_kᵀ t_pred — the offsets then come from the same pose distribution as
+    the test inputs instead of the single identity pose (the spec feeds identity-pose inputs only).
+    """
+    pts = np.asarray(canonical_points)
+    if rotations is not None:
+        pts = np.einsum("kij,knj->kni", rotations, pts)                               # [K, N, 3] rotated inputs
+    dR, dt, _ = predict_torch(model, pts, batch_size, device)
+    if rotations is not None:
+        dR = np.einsum("kji,kjl->kil", rotations, dR)                                 # R_kᵀ R_pred
+        dt = np.einsum("kji,kj->ki", rotations, dt)                                   # R_kᵀ t_pred
     return calibrate_offsets(dR, dt, symmetry=symmetry, unsigned_axis=unsigned_axis, seed=seed)
