@@ -93,14 +93,14 @@ def _int8_path(model_path: str) -> str:
     sib = p.with_name(p.stem + ".int8.onnx")
     if sib.is_file():
         return str(sib)
-    try:
-        from equipose.export.quantize import quantize_int8
-    except ImportError:
-        raise RuntimeError(f"no int8 model next to {p.name} ({sib.name}); make one with 'equipose export --int8' "
-                           "or install the train extra") from None
     import tempfile
     out = Path(tempfile.mkdtemp()) / sib.name
-    quantize_int8(str(p), str(out))
+    try:
+        from equipose.export.quantize import quantize_int8
+        quantize_int8(str(p), str(out))
+    except ImportError:
+        raise RuntimeError(f"no int8 model next to {p.name} ({sib.name}); make one with 'equipose export --int8' "
+                           "or install the train extra to quantise on the fly") from None
     return str(out)
 
 
