@@ -47,6 +47,9 @@ class PoseEstimator:
         import onnxruntime as ort
 
         path = pathlib.Path(model_path)
+        if not path.is_file() and isinstance(model_path, str) and "/" not in model_path and "\\" not in model_path:
+            from .models import resolve_model                                  # a shipped model's name
+            path = resolve_model(model_path)
         if not path.is_file():
             raise ModelFormatError(f"model file {str(path)!r} does not exist; pass the path of an equipose .onnx model "
                                    "(the demo model is equipose.models.demo_model_path())")

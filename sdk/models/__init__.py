@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import pathlib
 
-__all__ = ["MODELS_DIR", "DEMO_MODEL", "demo_model_path", "list_models"]
+__all__ = ["MODELS_DIR", "DEMO_MODEL", "demo_model_path", "list_models", "model_names", "resolve_model"]
 
 MODELS_DIR = pathlib.Path(__file__).resolve().parent
 DEMO_MODEL = "demo_mug_small.onnx"
@@ -22,3 +22,29 @@ def demo_model_path() -> pathlib.Path:
 def list_models() -> list:
     """Paths of all ``.onnx`` files shipped in this package, sorted."""
     return sorted(MODELS_DIR.glob("*.onnx"))
+
+
+def _key(name: str) -> str:
+    return name.lower().replace("-", "_").removesuffix(".onnx")
+
+
+def model_names() -> list:
+    """Names of the shipped models (file stems with '-' for '_'), e.g. ``demo-mug-small``."""
+    return [p.stem.replace("_", "-") for p in list_models()]
+
+
+def resolve_model(name_or_path) -> pathlib.Path:
+    """A model file path from a path or a shipped model's name (case-, '-'/'_'- and '.onnx'-insensitive).
+
+    Raises ``ModelFormatError`` naming the shipped models when neither a file nor a known name matches.
+    """
+    from equipose.errors import ModelFormatError
+    path = pathlib.Path(name_or_path)
+    if path.is_file():
+        return path
+    key = _key(str(name_or_path))
+    for p in list_models():
+        if _key(p.name) == key:
+            return p
+    raise ModelFormatError(f"model {str(name_or_path)!r} is neither a file nor a shipped model; shipped: "
+                           f"{', '.join(model_names()) or 'none'} (see 'equipose models')")

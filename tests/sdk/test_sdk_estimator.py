@@ -225,3 +225,15 @@ def test_symmetric_category_reports_axis_and_canonical_rotation(tiny_model, scen
     assert r.to_dict()["symmetry"] == "continuous:z" and len(r.to_dict()["symmetry_axis"]) == 3
     plain = PoseEstimator(tiny_model, threads=1).predict(depth, K_VGA, mask=hit)
     assert plain.symmetry_axis is None and np.allclose(plain.rotation_canonical, plain.rotation)
+
+
+def test_shipped_model_by_name():
+    from equipose import PoseEstimator
+    from equipose.errors import ModelFormatError
+    from equipose.models import demo_model_path, model_names, resolve_model
+    assert "demo-mug-small" in model_names()
+    assert resolve_model("demo-mug-small") == demo_model_path() == resolve_model("DEMO_mug_small.onnx")
+    est = PoseEstimator("demo-mug-small", threads=1)
+    assert est.path == demo_model_path() and est.category == "mug"
+    with pytest.raises(ModelFormatError, match="shipped"):
+        PoseEstimator("no-such-model")
