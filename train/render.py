@@ -193,6 +193,7 @@ class RenderSettings:
     distance: float = 1.8              # object-centre depth, in units of the object's max radius
     offset_var: tuple = (0.2, 0.2, 0.15)   # Σ diagonal (variances), same units squared
     max_points: int = 2048             # points kept per view in the cache (random subset of the crop)
+    crop_max_points: int = 4096        # equipose.crop grid thinning before that subset (explicit: part of the cache key)
 
 
 def sample_pose(rng: np.random.Generator, settings: RenderSettings, radius: float = 1.0) -> tuple:
@@ -258,7 +259,7 @@ def render_views(shape: dict, rng: np.random.Generator, views: int, settings: Re
             R, t = sample_pose(rng, settings, radius)
             depth, mask = render_frame(shape, R, t, K, size)
             try:
-                crop = crop_points(depth, K, mask=mask, depth_unit="mm")
+                crop = crop_points(depth, K, mask=mask, depth_unit="mm", max_points=settings.crop_max_points)
             except EquiposeError:
                 continue
             pts = crop.points
