@@ -24,6 +24,7 @@ from scipy.spatial import cKDTree
 
 from .errors import (DepthDtypeError, DepthUnitError, EmptyDepthError, IntrinsicsError, InvalidPointsError,
                      RegionError, TooFewPointsError)
+from .geometry import farthest_point_order
 
 __all__ = ["CropResult", "PreparedPoints", "MIN_POINTS", "depth_to_metres", "check_intrinsics", "check_box",
            "check_mask", "crop_points", "prepare_points", "check_points", "statistical_outlier_mask",
@@ -397,31 +398,10 @@ def find_support_plane(depth_m: np.ndarray, K: np.ndarray, *, threshold: float =
 # Model input
 
 def fps_order(points: np.ndarray, n: int, start: int = 0) -> np.ndarray:
-    """Greedy farthest-point order, identical to ``geometry.farthest_point_order`` but 5–7× faster.
-
-    Convention: ``points`` [P, 3] → indices [n] (nested prefixes; wraps around when n > P). Per-coordinate contiguous
-    float32 arrays and in-place ufuncs keep every step to four passes over P floats.
-    """
-    p = np.asarray(points, np.float32)
-    P = len(p)
-    if P == 0:
+    """``geometry.farthest_point_order`` with the SDK's typed error. Convention: [P, 3] → indices [n] (nested)."""
+    if len(points) == 0:
         raise TooFewPointsError("farthest-point ordering got no points")
-    x, y, z = (np.ascontiguousarray(p[:, k]) for k in range(3))                 # [P] each
-    m = min(int(n), P)
-    idx = np.empty(m, dtype=np.int64)
-    idx[0] = start
-    d = (x - x[start]) ** 2 + (y - y[start]) ** 2 + (z - z[start]) ** 2         # [P] squared distance to the set
-    t, u = np.empty_like(d), np.empty_like(d)
-    for i in range(1, m):
-        j = int(d.argmax())
-        idx[i] = j
-        np.subtract(x, x[j], out=t); np.multiply(t, t, out=t)
-        np.subtract(y, y[j], out=u); np.multiply(u, u, out=u); t += u
-        np.subtract(z, z[j], out=u); np.multiply(u, u, out=u); t += u
-        np.minimum(d, t, out=d)
-    if n > P:
-        idx = np.resize(idx, int(n))
-    return idx
+    return farthest_point_order(points, n, start=start)
 
 
 def prepare_points(points_m, num_points: int, scale: float, *, min_points: int = MIN_POINTS,

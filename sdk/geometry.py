@@ -67,22 +67,28 @@ def backproject(depth_m: np.ndarray, K: np.ndarray, mask: np.ndarray | None = No
 def farthest_point_order(points: np.ndarray, n: int, start: int = 0) -> np.ndarray:
     """Greedy farthest-point sampling: indices [n] of ``points`` [P, 3], nested (its first k are FPS(k)).
 
-    When ``n > P`` the order wraps around (indices repeat), so the model still receives N points.
+    When ``n > P`` the order wraps around (indices repeat), so the model still receives N points. Per-coordinate
+    contiguous float32 arrays and in-place ufuncs keep every step to four passes over P floats.
     """
-    points = np.asarray(points, dtype=np.float32)
-    P = len(points)
+    p = np.asarray(points, dtype=np.float32)
+    P = len(p)
     if P == 0:
         raise ValueError("farthest_point_order: no points")
-    m = min(n, P)
+    x, y, z = (np.ascontiguousarray(p[:, k]) for k in range(3))                 # [P] each
+    m = min(int(n), P)
     idx = np.empty(m, dtype=np.int64)
     idx[0] = start
-    d = np.sum((points - points[start]) ** 2, axis=1)
+    d = (x - x[start]) ** 2 + (y - y[start]) ** 2 + (z - z[start]) ** 2         # [P] squared distance to the set
+    t, u = np.empty_like(d), np.empty_like(d)
     for i in range(1, m):
-        j = int(np.argmax(d))
+        j = int(d.argmax())
         idx[i] = j
-        np.minimum(d, np.sum((points - points[j]) ** 2, axis=1), out=d)
+        np.subtract(x, x[j], out=t); np.multiply(t, t, out=t)
+        np.subtract(y, y[j], out=u); np.multiply(u, u, out=u); t += u
+        np.subtract(z, z[j], out=u); np.multiply(u, u, out=u); t += u
+        np.minimum(d, t, out=d)
     if n > P:
-        idx = np.resize(idx, n)
+        idx = np.resize(idx, int(n))
     return idx
 
 

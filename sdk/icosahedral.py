@@ -26,6 +26,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from .geometry import matrix_to_quaternion, quaternion_to_matrix
+
 __all__ = [
     "NUM_ROTATIONS", "IDENTITY_INDEX", "ANCHORS", "ANCHOR_QUATERNIONS", "CAYLEY", "INVERSE", "INTRA_GENERATORS",
     "INTRA_NEIGHBOURS", "VERTICES", "VERTEX_PERMUTATION", "KERNEL_POINTS_24", "KERNEL_POINTS_13", "kernel_points",
@@ -73,43 +75,6 @@ _KERNEL_24 = """
 """
 
 
-def _quaternion_to_matrix(q: np.ndarray) -> np.ndarray:
-    """``q`` [..., 4] (w, x, y, z) → [..., 3, 3]; normalises first."""
-    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
-    w, x, y, z = np.moveaxis(q, -1, 0)
-    return np.stack([
-        np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
-        np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
-        np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
-    ], -2)
-
-
-def _matrix_to_quaternion(R: np.ndarray) -> np.ndarray:
-    """[..., 3, 3] → [..., 4] (w, x, y, z) with w >= 0 (Shepperd's method via the largest diagonal term)."""
-    R = np.asarray(R, dtype=np.float64)
-    m = R.reshape(-1, 3, 3)
-    out = np.empty((m.shape[0], 4))
-    tr = np.trace(m, axis1=1, axis2=2)
-    cand = np.stack([tr, m[:, 0, 0], m[:, 1, 1], m[:, 2, 2]], 1)
-    for i, (r, k) in enumerate(zip(m, cand.argmax(1))):
-        if k == 0:
-            s = 2.0 * np.sqrt(max(1.0 + tr[i], 1e-300))
-            q = [0.25 * s, (r[2, 1] - r[1, 2]) / s, (r[0, 2] - r[2, 0]) / s, (r[1, 0] - r[0, 1]) / s]
-        elif k == 1:
-            s = 2.0 * np.sqrt(max(1.0 + r[0, 0] - r[1, 1] - r[2, 2], 1e-300))
-            q = [(r[2, 1] - r[1, 2]) / s, 0.25 * s, (r[0, 1] + r[1, 0]) / s, (r[0, 2] + r[2, 0]) / s]
-        elif k == 2:
-            s = 2.0 * np.sqrt(max(1.0 - r[0, 0] + r[1, 1] - r[2, 2], 1e-300))
-            q = [(r[0, 2] - r[2, 0]) / s, (r[0, 1] + r[1, 0]) / s, 0.25 * s, (r[1, 2] + r[2, 1]) / s]
-        else:
-            s = 2.0 * np.sqrt(max(1.0 - r[0, 0] - r[1, 1] + r[2, 2], 1e-300))
-            q = [(r[1, 0] - r[0, 1]) / s, (r[0, 2] + r[2, 0]) / s, (r[1, 2] + r[2, 1]) / s, 0.25 * s]
-        q = np.asarray(q)
-        q /= np.linalg.norm(q)
-        out[i] = -q if q[0] < 0 or (q[0] == 0 and q[np.flatnonzero(q)[0]] < 0) else q
-    return out.reshape(R.shape[:-2] + (4,))
-
-
 def _project_so3(M: np.ndarray) -> np.ndarray:
     """Nearest rotation (chordal L2) to each [..., 3, 3] matrix."""
     U, _, Vt = np.linalg.svd(M)
@@ -126,7 +91,7 @@ def _nearest(R: np.ndarray, table: np.ndarray) -> np.ndarray:
 
 def _build():
     raw = np.array(_ANCHOR_QUATERNIONS.split(), dtype=np.float64).reshape(NUM_ROTATIONS, 4)
-    A = _project_so3(_quaternion_to_matrix(raw))
+    A = _project_so3(quaternion_to_matrix(raw))
     for _ in range(3):  # polish: each element = chordal mean of all products that equal it
         prod = np.einsum("iab,jbc->ijac", A, A)                      # [60, 60, 3, 3]
         cay = _nearest(prod, A)                                       # [60, 60]
@@ -140,7 +105,7 @@ def _build():
 
 ANCHORS, CAYLEY, INVERSE = _build()
 ANCHORS.setflags(write=False)
-ANCHOR_QUATERNIONS = _matrix_to_quaternion(ANCHORS)
+ANCHOR_QUATERNIONS = matrix_to_quaternion(ANCHORS)
 INTRA_NEIGHBOURS = CAYLEY[:, INTRA_GENERATORS]
 
 

@@ -90,10 +90,10 @@ def test_kernel_points():
 
 
 def test_quaternions_match_matrices():
-    from equipose.icosahedral import _quaternion_to_matrix
+    from equipose.geometry import quaternion_to_matrix
     q = I.ANCHOR_QUATERNIONS
     assert (q[:, 0] >= 0).all() and np.allclose(np.linalg.norm(q, axis=1), 1)
-    assert np.allclose(_quaternion_to_matrix(q), I.ANCHORS, atol=1e-12)
+    assert np.allclose(quaternion_to_matrix(q), I.ANCHORS, atol=1e-12)
 
 
 def test_rotation_index():
