@@ -25,7 +25,7 @@ import numpy as np
 from equipose.errors import ConfigError, ModelFormatError
 from equipose.metadata import encode_metadata
 
-__all__ = ["DEFAULT_OPSET", "OUTPUT_NAMES", "INPUT_NAME", "export_model", "export_random_model", "export_checkpoint",
+__all__ = ["DEFAULT_OPSET", "OUTPUT_NAMES", "INPUT_NAME", "export_model", "export_random_model", "export_checkpoint", "update_metadata",
            "calibration_arrays", "op_type_counts"]
 
 DEFAULT_OPSET = 20
@@ -247,3 +247,31 @@ def export_checkpoint(checkpoint, path, **kwargs) -> pathlib.Path:
     return export_model(model, path, category=ckpt.get("category", "unknown"), scale=ckpt.get("scale", 1.0),
                         symmetry=ckpt.get("symmetry", "none"), calibration=ckpt.get("calibration"),
                         random_init=False, training=training, metrics=ckpt.get("metrics") or {}, **kwargs)
+
+
+def update_metadata(path, **values) -> pathlib.Path:
+    """Rewrite metadata entries of an exported model in place (dicts are stored as JSON), e.g. ``metrics=`` after an
+    evaluation of that very file. The result is re-validated with ``equipose.metadata.decode_metadata``."""
+    import json
+    import os
+
+    import onnx
+
+    from equipose.metadata import decode_metadata
+
+    path = pathlib.Path(path)
+    try:
+        proto = onnx.load(str(path))
+    except Exception as e:                                                 # protobuf decode errors, missing file
+        raise ModelFormatError(f"{path} is not a readable ONNX model: {e}") from None
+    meta = {p.key: p.value for p in proto.metadata_props}
+    for k, v in values.items():
+        meta[k] = json.dumps(v) if isinstance(v, (dict, list)) else str(v)
+    decode_metadata(meta, source=str(path))
+    del proto.metadata_props[:]
+    for k, v in meta.items():
+        proto.metadata_props.add(key=k, value=v)
+    tmp = path.with_name(path.name + ".tmp")
+    onnx.save_model(proto, str(tmp))
+    os.replace(tmp, path)
+    return path

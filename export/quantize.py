@@ -81,6 +81,7 @@ def quantize_int8(fp32_path, out_path=None, *, per_channel: bool = True,
             root.setLevel(level)
         q = onnx.load(str(raw))
     del q.metadata_props[:]
+    meta["precision"] = "int8"
     for k, v in meta.items():
         q.metadata_props.add(key=k, value=v)
     q.doc_string = src.doc_string + " (int8 dynamic-quantized weights)"

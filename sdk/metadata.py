@@ -20,6 +20,7 @@ Keys (all values are strings):
     random_init             "true" for random-weight models (tests, benchmarks, demo placeholder)
     training                JSON: training data summary (dataset, mode, steps, ...)
     metrics                 JSON: metrics on the test split ({} if none)
+Optional keys (absent in older files): ``precision`` "fp32" | "int8" (weights of the graph's MatMul/Gemm).
 """
 from __future__ import annotations
 
@@ -64,6 +65,7 @@ def encode_metadata(*, category: str, preset: str, model_config: dict, num_point
         "random_init": "true" if random_init else "false",
         "training": json.dumps(training or {}),
         "metrics": json.dumps(metrics or {}),
+        "precision": "fp32",
     }
 
 

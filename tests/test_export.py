@@ -230,8 +230,10 @@ def test_int8_copy(tiny_cli, rng):
     proto = onnx.load(str(q))
     assert {n.domain for n in proto.graph.node} <= {"", "ai.onnx"}
     assert "MatMulInteger" in {n.op_type for n in proto.graph.node}
-    assert {p.key: p.value for p in proto.metadata_props} == \
-        {p.key: p.value for p in onnx.load(str(path)).metadata_props}
+    q_meta = {p.key: p.value for p in proto.metadata_props}
+    f_meta = {p.key: p.value for p in onnx.load(str(path)).metadata_props}
+    assert q_meta.pop("precision") == "int8" and f_meta.pop("precision") == "fp32"
+    assert q_meta == f_meta
     x = _cloud(rng, 2, model.num_points)
     a = _session(path).run(list(OUTPUTS), {"points": x})
     b = _session(q).run(list(OUTPUTS), {"points": x})
@@ -271,3 +273,24 @@ def test_api_rejects_bad_arguments(tmp_path):
         (tmp_path / "junk.onnx").write_bytes(b"junk")
         quantize_int8(tmp_path / "junk.onnx")
     assert not (tmp_path / "a.onnx").exists()
+
+
+def test_update_metadata_and_model_card(tiny_ckpt, tmp_path):
+    import shutil
+
+    from equipose.export import update_metadata
+    from equipose.models import model_card
+    path = tmp_path / "cup-test.onnx"
+    shutil.copy(tiny_ckpt[1], path)
+    metrics = {"n": 10, "rot_median_deg": 3.5, "acc_5deg": 0.7, "icp60": {"rot_median_deg": 9.0}}
+    update_metadata(path, metrics=metrics)
+    card = model_card(path)
+    assert card["metrics"] == metrics and card["name"] == "cup-test" and card["category"] == "mug"
+    assert card["mode"] == "partial" and card["preset"] == "tiny" and card["precision"] == "fp32"
+    assert card["training"]["step"] == 42 and card["size_mb"] > 0
+    before = path.read_bytes()
+    with pytest.raises(MetadataError):                        # re-validated before anything is written
+        update_metadata(path, scale=-1.0)
+    assert path.read_bytes() == before
+    with pytest.raises(ModelFormatError):
+        update_metadata(tmp_path / "missing.onnx", metrics={})

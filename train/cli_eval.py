@@ -6,7 +6,9 @@ instance's bbox diagonal; 5°0.05 = rotation ≤ 5° and translation ≤ 0.05; f
 """
 from __future__ import annotations
 
-from .evaluate import evaluate, format_table, plot_percentiles, write_json
+from equipose.errors import ConfigError
+
+from .evaluate import evaluate, format_table, metrics_for_metadata, plot_percentiles, write_json
 
 
 def add_arguments(p) -> None:
@@ -26,6 +28,9 @@ def add_arguments(p) -> None:
     p.add_argument("--data-root", dest="data_root")
     p.add_argument("--cache-dir", dest="cache_dir")
     p.add_argument("--threads", type=int, default=1, help="torch threads")
+    p.add_argument("--store-metrics", dest="store_metrics", action="store_true",
+                   help="with --model: write this table into the model file's 'metrics' metadata (what "
+                        "'equipose models' lists)")
 
 
 def run(args) -> int:
@@ -34,7 +39,13 @@ def run(args) -> int:
     res = evaluate(category=args.category, mode=args.mode, checkpoint=args.checkpoint, model_path=args.model,
                    data_root=args.data_root, limit=args.limit, icp_templates=args.icp_templates,
                    icp_points=args.icp_points, icp_iters=args.icp_iters, icp_samples=args.icp_samples, cache_dir=args.cache_dir)
+    if args.store_metrics and not args.model:
+        raise ConfigError("--store-metrics needs --model (the metrics describe that file)")
     print(format_table(res))
+    if args.store_metrics:
+        from equipose.export.onnx_export import update_metadata
+        update_metadata(args.model, metrics=metrics_for_metadata(res))
+        print(f"stored the metrics in {args.model}")
     if args.json:
         write_json(res, args.json)
     if args.plot:

@@ -28,7 +28,8 @@ from .data import ModelNetComplete, RenderedPartial, default_data_root, load_mod
 from .icp import icp60
 from .metrics import ROW_KEYS, rotation_errors, summarize, translation_errors
 
-__all__ = ["test_dataset", "predict_checkpoint", "predict_onnx", "run_icp", "evaluate", "plot_percentiles"]
+__all__ = ["test_dataset", "predict_checkpoint", "predict_onnx", "run_icp", "evaluate", "plot_percentiles",
+           "metrics_for_metadata"]
 
 
 def test_dataset(root, category: str, mode: str, num_points: int, limit: int | None = None, cache_dir=None,
@@ -81,6 +82,17 @@ def run_icp(samples: list, templates: list, bidirectional: bool, obs_points: int
     return out
 
 
+def _icp_template_clouds(root, category: str) -> list:
+    """ICP-60 template candidates in the test samples' units: ModelNet train clouds (file units), or for tabletop
+    categories the ModelNet source category resized to the middle of its metric radius range (metres)."""
+    from .tabletop import TABLETOP
+    spec = TABLETOP.get(category)
+    if spec is None:
+        return list(load_modelnet(root, category, "train")[0])
+    clouds, _ = load_modelnet(root, spec.modelnet, "train", spec.train_limit)
+    return [c * float(np.mean(spec.radius_m)) for c in clouds]
+
+
 def _row(method, R, t, samples, symmetry, unsigned):
     R_gt = np.stack([s["rotation"] for s in samples])
     t_gt = np.stack([s["translation_m"] for s in samples])
@@ -124,7 +136,7 @@ def evaluate(*, category: str, mode: str, checkpoint=None, model_path=None, data
     row, r_err, t_err = _row("equipose", R, t, samples, symmetry, unsigned)
     rows, errors = [row], {"equipose": (r_err, t_err)}
 
-    clouds, _ = load_modelnet(root, category, "train")
+    clouds = _icp_template_clouds(root, category)
     pick = np.random.default_rng(seed).choice(len(clouds), size=icp_templates, replace=False)
     templates = [clouds[i][farthest_point_order(clouds[i], template_points)].astype(np.float64) for i in pick]
     icp_idx = np.arange(len(samples))
@@ -158,6 +170,15 @@ def format_table(result: dict) -> str:
         lines.append(f"{name:10s} {r['rot_mean_deg']:9.2f} {r['rot_median_deg']:8.2f} {r['trans_mean']:7.3f} "
                      f"{r['trans_median']:7.3f} {r['acc_5deg']:5.2f} {r['acc_5deg_005']:7.2f} {r['flip_rate']:5.2f}")
     return "\n".join(lines)
+
+
+def metrics_for_metadata(result: dict) -> dict:
+    """The compact ``metrics`` metadata entry of a model: its own row, ICP-60's row, test-set description."""
+    rows = {r["method"]: {k: round(float(r[k]), 4) for k in ROW_KEYS[1:]} for r in result["rows"]}
+    info = result.get("_info", {})
+    return {"test_set": f"{result['category']}/{result['mode']} test split (equipose.train.evaluate)",
+            "n": int(result["n"]), "icp60_samples": int(info.get("icp_samples", result["n"])),
+            **rows.get("equipose", {}), "icp60": rows.get("icp60", {})}
 
 
 def write_json(result: dict, path) -> None:

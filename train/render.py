@@ -309,13 +309,18 @@ def default_cache_dir() -> pathlib.Path:
 def ensure_cache(root, category: str, split: str, cache_dir=None, limit: int | None = None, views: int = 10,
                  source: str = "npy1024", seed: int = 0, settings: RenderSettings | None = None,
                  progress: bool = True, log=print) -> pathlib.Path:
-    """Render (once) and cache the partial views of a ModelNet category split; returns the ``.npz`` path.
+    """Render (once) and cache the partial views of a ModelNet category split (tabletop categories: see
+    ``equipose.train.tabletop``); returns the ``.npz`` path.
 
     The cache key hashes every setting, so a changed setting renders a new cache. Seeded per instance: view k of
     instance i depends only on (seed, split, i).
     """
     from tqdm import tqdm
     from .data import MODELNET_SCALE
+    from .tabletop import ensure_tabletop_cache, is_tabletop
+    if is_tabletop(category):     # cup / bowl / can: metric-scale tabletop data (equipose.train.tabletop)
+        return ensure_tabletop_cache(root, category, split, cache_dir=cache_dir, views=views, seed=seed,
+                                     progress=progress, log=log, limit=limit)
     settings = settings or RenderSettings(distance=CATEGORY_DISTANCE.get(category, 2.0))
     key = json.dumps({"category": category, "split": split, "limit": limit, "views": views, "source": source,
                       "seed": seed, "settings": asdict(settings), "v": 1}, sort_keys=True)

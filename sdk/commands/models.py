@@ -8,23 +8,31 @@ __all__ = ["add_arguments", "run"]
 
 def add_arguments(p):
     p.add_argument("paths", nargs="*", help=".onnx files to describe (default: the bundled models)")
-    p.add_argument("--json", action="store_true", help="print JSON")
+    p.add_argument("--json", action="store_true",
+                   help="print JSON: [{name, path, category, mode, preset, precision, size_mb, metrics, ...}]")
+
+
+def _fmt(x, spec: str) -> str:
+    return format("-", ">" + spec.split(".")[0].rstrip("d")) if x is None else format(x, spec)
 
 
 def run(args) -> int:
-    from equipose.estimator import PoseEstimator
-    from equipose.models import list_models
+    from equipose.models import model_cards
 
-    paths = args.paths or list_models()
-    rows = []
-    for path in paths:
-        est = PoseEstimator(path, threads=1)
-        info = {"path": str(path), **est.info}
-        rows.append(info)
-        if not args.json:
-            flag = "  RANDOM WEIGHTS (placeholder)" if est.random_init else ""
-            print(f"{path}\n  category {est.category}, preset {info['preset']}, {est.num_points} points, scale "
-                  f"{est.scale} m/unit, symmetry {est.symmetry}, partial {info['partial']}{flag}")
+    cards = model_cards(args.paths or None)
     if args.json:
-        print(json.dumps(rows, indent=1, default=str))
+        print(json.dumps(cards, indent=1, default=str))
+        return 0
+    if not cards:
+        print("no models")
+        return 0
+    print(f"{'name':28s} {'category':9s} {'mode':8s} {'preset':7s} {'prec':5s} {'MB':>5s} {'rot med':>8s} "
+          f"{'5°':>5s} {'ICP med':>8s} {'steps':>6s}")
+    for c in cards:
+        m, icp = c["metrics"], c["metrics"].get("icp60", {})
+        name = c["name"] + (" (random)" if c["random_init"] else "")
+        print(f"{name:28s} {c['category']:9s} {c['mode']:8s} {c['preset']:7s} {c['precision']:5s} {c['size_mb']:5.2f} "
+              f"{_fmt(m.get('rot_median_deg'), '8.2f')} {_fmt(m.get('acc_5deg'), '5.2f')} "
+              f"{_fmt(icp.get('rot_median_deg'), '8.2f')} {_fmt(c['training'].get('step'), '6d')}")
+    print("rot med / 5°: the model's own test metrics (equipose eval --store-metrics); ICP med: ICP-60 in the same run")
     return 0

@@ -8,7 +8,8 @@ from __future__ import annotations
 
 import pathlib
 
-__all__ = ["MODELS_DIR", "DEMO_MODEL", "demo_model_path", "list_models", "model_names", "resolve_model"]
+__all__ = ["MODELS_DIR", "DEMO_MODEL", "demo_model_path", "list_models", "model_names", "resolve_model", "model_card",
+           "model_cards"]
 
 MODELS_DIR = pathlib.Path(__file__).resolve().parent
 DEMO_MODEL = "demo_mug_small.onnx"
@@ -48,3 +49,27 @@ def resolve_model(name_or_path) -> pathlib.Path:
             return p
     raise ModelFormatError(f"model {str(name_or_path)!r} is neither a file nor a shipped model; shipped: "
                            f"{', '.join(model_names()) or 'none'} (see 'equipose models')")
+
+
+def model_card(path) -> dict:
+    """One model's listing (JSON-ready): name, path, category, mode, preset, precision, size, test metrics, training.
+
+    Reads the metadata only (onnx protobuf via onnxruntime's model metadata; no inference). ``precision`` comes from
+    the metadata key (older files: from the ``.int8`` name suffix).
+    """
+    from equipose.estimator import PoseEstimator
+    path = pathlib.Path(path)
+    est = PoseEstimator(path, threads=1)
+    meta = est.metadata
+    precision = meta.get("precision") or ("int8" if path.name.endswith(".int8.onnx") else "fp32")
+    training = meta.get("training") or {}
+    return {"name": path.name.removesuffix(".onnx").replace("_", "-"), "path": str(path),
+            "category": est.category, "mode": "partial" if meta["partial"] else "complete", "preset": meta["preset"],
+            "precision": precision, "size_mb": round(path.stat().st_size / 1e6, 3), "num_points": est.num_points,
+            "scale_m_per_unit": est.scale, "symmetry": est.symmetry, "random_init": bool(meta["random_init"]),
+            "metrics": meta.get("metrics") or {}, "training": training}
+
+
+def model_cards(paths=None) -> list:
+    """``model_card`` of each path (default: every shipped model)."""
+    return [model_card(p) for p in (paths or list_models())]

@@ -1,0 +1,160 @@
+"""Tabletop categories at metric scale: ``cup`` (mugs and cups), ``bowl`` and ``can`` (cans and bottles), rendered as
+partial depth from ModelNet40 clouds resized to real sizes plus the real-scanned OCRTOC and YCB meshes.
+
+Convention:
+    Object frame: the ModelNet40 category frame (up = +z, the symmetry axis), origin at the shape's centre. The metric
+    meshes are z-up in their files (``shampoo`` lies along y and is turned up); they are centred at their vertex mean.
+    Units: metres everywhere in the cache; the category's ``scale`` (metres per model unit) maps them to model units.
+    Camera: the renderer's OpenCV pinhole (``equipose.train.render``); the object centre is 0.5–1.4 m away (the
+    range of a tabletop RGB-D camera), laterally offset by N(0, (0.12·d)²) per axis; rotations uniform on SO(3).
+    Splits: train = ModelNet train shapes + every metric mesh / scan; test = ModelNet test shapes only (their frame is
+    the category frame, so they also serve calibration and the paper-style table). The metric meshes are never in test.
+    The cache layout is ``equipose.train.data.RenderedPartial``'s.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import pathlib
+import time
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+from equipose.errors import ConfigError
+
+__all__ = ["TabletopSpec", "TABLETOP", "is_tabletop", "tabletop_sources", "ensure_tabletop_cache"]
+
+
+@dataclass(frozen=True)
+class TabletopSpec:
+    """One tabletop category: ModelNet source category and metric size range, extra metric meshes / scans, scale."""
+    scale: float                                   # metres per model unit (≈ 2 × largest max radius expected)
+    modelnet: str                                  # ModelNet40 category resized to metric sizes
+    radius_m: tuple                                # (min, max) max radius in metres drawn per ModelNet instance
+    meshes: tuple = ()                             # (path under data root, rotation "none" | "y_up") triangle meshes, metres
+    scans: tuple = ()                              # YCB-Video model points (points.xyz, metres), splatted as surfels
+    train_limit: int | None = None                 # ModelNet train shapes used (None = all)
+    test_limit: int | None = None                  # ModelNet test shapes used
+    notes: str = ""
+
+
+_O = "ocrtoc_scanned_household"
+_Y = "ycb_meshes_pybullet"
+_P = "ycb_posecnn/models"
+TABLETOP = {
+    "cup": TabletopSpec(scale=0.16, modelnet="cup", radius_m=(0.045, 0.075),
+                        meshes=((f"{_O}/mug/visual.ply", "none"), (f"{_O}/blue_cup/visual.ply", "none")),
+                        scans=(f"{_P}/025_mug/points.xyz",), notes="mugs and cups, handle or not"),
+    "bowl": TabletopSpec(scale=0.2, modelnet="bowl", radius_m=(0.06, 0.1),
+                         meshes=((f"{_O}/bowl/visual.ply", "none"), (f"{_O}/green_bowl/visual.ply", "none"),
+                                 (f"{_O}/doraemon_bowl/visual.ply", "none")),
+                         scans=(f"{_P}/024_bowl/points.xyz",)),
+    "can": TabletopSpec(scale=0.25, modelnet="bottle", radius_m=(0.06, 0.125), train_limit=200, test_limit=40,
+                        meshes=((f"{_Y}/YcbMasterChefCan/textured_simple_reoriented.obj", "none"),
+                                (f"{_Y}/YcbTomatoSoupCan/textured_simple_reoriented.obj", "none"),
+                                (f"{_Y}/YcbMustardBottle/textured_simple_reoriented.obj", "none"),
+                                (f"{_O}/bleach_cleanser/visual.ply", "none"), (f"{_O}/shampoo/visual.ply", "y_up"),
+                                (f"{_O}/conditioner/visual.ply", "none"), (f"{_O}/blue_moon/visual.ply", "none")),
+                        scans=(f"{_P}/005_tomato_soup_can/points.xyz", f"{_P}/002_master_chef_can/points.xyz"),
+                        notes="cylindrical cans and bottles; the axis sign is not defined"),
+}
+
+_UP = {"none": np.eye(3), "y_up": np.array([[1.0, 0, 0], [0, 0, -1.0], [0, 1.0, 0]])}   # y → z
+
+
+def is_tabletop(category: str) -> bool:
+    return category in TABLETOP
+
+
+def tabletop_sources(root, category: str, split: str, seed: int = 0) -> list:
+    """[(name, shape dict in metres (object frame), complete points [P, 3] metres)] for one category and split."""
+    from .data import load_modelnet
+    from .meshio import read_mesh
+    from .render import surfels_from_points
+    if category not in TABLETOP:
+        raise ConfigError(f"{category!r} is not a tabletop category ({', '.join(TABLETOP)})")
+    spec, root = TABLETOP[category], pathlib.Path(root)
+    limit = spec.train_limit if split == "train" else spec.test_limit
+    clouds, ids = load_modelnet(root, spec.modelnet, split, limit)
+    rng = np.random.default_rng([seed, 0 if split == "train" else 1, 77])
+    out = []
+    for cid, p in zip(ids, clouds):
+        p = p.astype(np.float64) * rng.uniform(*spec.radius_m)           # max radius 1 → metres
+        n, r = surfels_from_points(p)
+        out.append((f"modelnet/{cid}", {"points": p, "normals": n, "radii": r}, p))
+    if split != "train":
+        return out
+    for rel, up in spec.meshes:
+        path = root / rel
+        if not path.is_file():
+            raise ConfigError(f"tabletop mesh {path} is missing; check --data-root")
+        V, F = read_mesh(path)
+        V = (V - V.mean(0)) @ _UP[up].T
+        out.append((rel, {"vertices": V, "faces": F}, V))
+    for rel in spec.scans:
+        path = root / rel
+        if not path.is_file():
+            raise ConfigError(f"tabletop scan {path} is missing; check --data-root")
+        p = np.loadtxt(path)[:, :3]
+        p = p - p.mean(0)
+        n, r = surfels_from_points(p)
+        out.append((rel, {"points": p, "normals": n, "radii": r}, p))
+    return out
+
+
+def _views_for(name: str, views: int, split: str) -> int:
+    """Metric meshes and scans are few, so each gets more views than a ModelNet instance."""
+    return views if name.startswith("modelnet/") or split != "train" else views * 8
+
+
+def ensure_tabletop_cache(root, category: str, split: str, cache_dir=None, views: int = 10, seed: int = 0,
+                          distance_m: tuple = (0.5, 1.4), lateral: float = 0.12, progress: bool = True,
+                          log=print, limit: int | None = None, **_ignored) -> pathlib.Path:
+    """Render (once) the partial views of a tabletop category split into a ``RenderedPartial`` cache; returns its path.
+
+    ``views`` per ModelNet instance (8× that per metric mesh / scan in train). Seeded per source: view k of source i
+    depends only on (seed, split, i). ``limit`` keeps the first K sources (tests, smoke runs).
+    """
+    from tqdm import tqdm
+    from .render import RenderSettings, default_cache_dir, render_views
+    spec = TABLETOP.get(category)
+    if spec is None:
+        raise ConfigError(f"{category!r} is not a tabletop category ({', '.join(TABLETOP)})")
+    key = json.dumps({"tabletop": category, "split": split, "views": views, "seed": seed, "distance_m": list(distance_m),
+                      "lateral": lateral, "limit": limit, "spec": asdict(spec), "settings": asdict(RenderSettings()),
+                      "v": 1}, sort_keys=True, default=str)
+    digest = hashlib.sha1(key.encode()).hexdigest()[:10]
+    cache_dir = pathlib.Path(cache_dir) if cache_dir else default_cache_dir()
+    path = cache_dir / f"tabletop_{category}_{split}_v{views}_{digest}.npz"
+    if path.is_file():
+        return path
+    cache_dir.mkdir(parents=True, exist_ok=True)
+    sources = tabletop_sources(root, category, split, seed)[:limit]
+    pts, Rs, ts, diags, inst = [], [], [], [], []
+    t0 = time.perf_counter()
+    split_id = 0 if split == "train" else 1
+    for i, (name, shape, complete) in enumerate(tqdm(sources, desc=f"render {category}/{split} (tabletop)",
+                                                    disable=not progress)):
+        rng = np.random.default_rng([seed, split_id, i])
+        radius = float(np.linalg.norm(complete, axis=1).max())
+        diag = float(np.linalg.norm(complete.max(0) - complete.min(0)))
+        for _ in range(_views_for(name, views, split)):
+            d = float(rng.uniform(*distance_m))
+            var = (lateral * d / radius) ** 2
+            settings = RenderSettings(distance=d / radius, offset_var=(var, var, (0.05 / radius) ** 2))
+            for p, R, t in render_views(shape, rng, 1, settings, radius=radius):
+                pts.append(p); Rs.append(R); ts.append(t); diags.append(diag); inst.append(i)
+    dt = time.perf_counter() - t0
+    if not pts:
+        raise ConfigError(f"no view of tabletop {category}/{split} could be rendered")
+    offsets = np.concatenate([[0], np.cumsum([len(p) for p in pts])]).astype(np.int64)
+    tmp = path.with_suffix(".tmp.npz")
+    np.savez(tmp, points=np.concatenate(pts), offsets=offsets, rotations=np.stack(Rs), translations=np.stack(ts),
+             diags=np.array(diags), instances=np.array(inst), scale=np.float64(spec.scale), category=np.str_(category),
+             settings=np.str_(key), sources=np.array([s[0] for s in sources]),
+             frames_per_second=np.float64(len(pts) / dt))
+    tmp.replace(path)
+    log(f"rendered {len(pts)} views of {len(sources)} tabletop {category}/{split} sources in {dt:.1f} s "
+        f"({len(pts) / dt:.1f} frames/s) → {path}")
+    return path
