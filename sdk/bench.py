@@ -149,51 +149,31 @@ def run_backend(backend: str, model_path: str, threads: int = 2, objects: int = 
         torch.set_num_threads(threads)
         forward, note = _torch_forward(est, checkpoint)
     elif backend == "icp60":
-        from equipose.train.icp import icp60
-
-    def one_frame() -> dict:
-        st = dict.fromkeys(STAGES, 0.0)
-        t0 = time.perf_counter()
-        depth_m = C.depth_to_metres(frame.depth, frame.depth_unit)
-        K = C.check_intrinsics(frame.K, depth_m.shape, frame.image_size)
-        plane = C.find_support_plane(depth_m, K)
-        preps = []
-        for b in boxes:
-            t1 = time.perf_counter()
-            c = C.crop_points(depth_m, K, box=b, depth_unit="m", check_plausible=False, support_plane=plane,
-                              remove_support_plane=plane is not None, **est.crop_options)
-            t2 = time.perf_counter()
-            preps.append(C.prepare_points(c.points, est.num_points, est.scale))
-            st["fps"] += (time.perf_counter() - t2) * 1e3
-            st["crop"] += (t2 - t1) * 1e3
-        x = np.stack([p.model_points for p in preps])                          # [B, N, 3]
-        t3 = time.perf_counter()
-        if backend == "icp60":
-            outs = [icp60(p.model_points, template, iters=30, bidirectional=not est.metadata["partial"]) for p in preps]
-            st["inference"] = (time.perf_counter() - t3) * 1e3                  # best of 60 inside icp60
-            t4 = time.perf_counter()
-            _ = [(R, p.to_metres(t)) for (R, t, _res), p in zip(outs, preps)]
-            st["selection"] = (time.perf_counter() - t4) * 1e3
-        else:
-            outputs = forward(x) if backend == "torch" else est.run_model(x)
-            st["inference"] = (time.perf_counter() - t3) * 1e3
-            t4 = time.perf_counter()
-            for b, p in enumerate(preps):
-                est._finish(outputs, b, p)
-            st["selection"] = (time.perf_counter() - t4) * 1e3
-        st["total"] = (time.perf_counter() - t0) * 1e3
-        st["crop"] = st["total"] - st["fps"] - st["inference"] - st["selection"]   # incl. frame validation + plane
-        return st
-
+        from equipose.train.icp import icp60_outputs
     if backend == "icp60":                                                      # template: the model's own shape
         c0 = est.crop(frame.depth, frame.K, box=box, depth_unit=frame.depth_unit, image_size=frame.image_size)
         p0 = C.prepare_points(c0.points, est.num_points, est.scale)
         template = est.run_model(p0.model_points[None])["canonical_shape"][0].astype(np.float64)
+        partial = bool(est.metadata["partial"])
+        est.runner = lambda x: icp60_outputs(x, template, iters=30, bidirectional=not partial)
     if backend == "torch":                                                      # parity with the ONNX file
         c0 = est.crop(frame.depth, frame.K, box=box, depth_unit=frame.depth_unit, image_size=frame.image_size)
         x0 = C.prepare_points(c0.points, est.num_points, est.scale).model_points[None]
         a, b = forward(x0), est.run_model(x0)
         parity = float(max(np.abs(a[k] - b[k]).max() for k in ("hypothesis_rotations", "hypothesis_scores")))
+        est.runner = forward
+
+    def one_frame() -> dict:
+        """One ``predict_batch`` call (the SDK path, with this backend as runner); stage times from its results."""
+        t0 = time.perf_counter()
+        results = est.predict_batch(frame.depth, frame.K, boxes=boxes, depth_unit=frame.depth_unit,
+                                    image_size=frame.image_size)
+        st = {"total": (time.perf_counter() - t0) * 1e3}
+        for k in ("crop", "fps", "selection"):                                  # per object → per frame
+            st[k] = sum(r.timings[k] for r in results)
+        st["inference"] = results[0].timings["inference"]                       # one batched run per frame
+        return st
+
     for _ in range(warmup):
         one_frame()
     samples = [one_frame() for _ in range(runs)]

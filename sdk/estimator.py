@@ -39,6 +39,10 @@ class PoseEstimator:
         crop_options: defaults for ``equipose.crop.crop_points`` (e.g. ``{"max_depth": 2.0}``).
         top_k: hypotheses listed in each result.
 
+    Attribute ``runner``: None (onnxruntime, ``run_model``) or a callable with ``run_model``'s contract
+    (model points [B, N, 3] float32 → the 4 output arrays) used in its place by every ``predict*`` call; ``equipose
+    bench`` swaps in torch eager and ICP-60 this way, so all backends share one pre/post-processing path.
+
     Raises ``ModelFormatError`` (missing file, not ONNX, not an equipose model, wrong inputs/outputs),
     ``ModelVersionError`` (metadata format mismatch), ``MetadataError`` (missing/malformed keys).
     """
@@ -70,6 +74,7 @@ class PoseEstimator:
         props = dict(self.session.get_modelmeta().custom_metadata_map)
         self.metadata = decode_metadata(props, source=path.name)
         self.path = path
+        self.runner = None
         self.category = str(self.metadata["category"])
         self.num_points = int(self.metadata["num_points"])
         self.num_canonical_points = int(self.metadata["num_canonical_points"])
@@ -181,7 +186,7 @@ class PoseEstimator:
     def _infer(self, preps, crops, fps_ms, crop_ms, counts, prefer=None, prefer_margin=0.0) -> list:
         t0 = time.perf_counter()
         x = np.stack([p.model_points for p in preps])                           # [B, N, 3]
-        outputs = self.run_model(x)
+        outputs = (self.runner or self.run_model)(x)
         inf_ms = _ms(t0)
         results = []
         for b, prep in enumerate(preps):

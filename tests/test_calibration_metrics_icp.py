@@ -117,6 +117,23 @@ def test_icp60_recovers_known_rotation(bidirectional):
         assert np.linalg.norm(th - t) < 0.01
 
 
+def test_icp60_outputs_follow_the_model_contract():
+    """icp60_outputs: shapes of the network's outputs; its best-scored hypothesis is icp60's answer, per batch item."""
+    from equipose.train.icp import icp60, icp60_outputs
+    rng = np.random.default_rng(1)
+    tmpl = _tripod(rng, 400)
+    obs = np.stack([tmpl[rng.permutation(400)[:256]] @ random_rotations(1, seed=s)[0].T + [0.1, 0, 0.2]
+                    for s in (3, 4)])                                             # [2, 256, 3]
+    out = icp60_outputs(obs, tmpl, iters=10)
+    assert out["hypothesis_rotations"].shape == (2, 60, 3, 3) and out["hypothesis_translations"].shape == (2, 60, 3)
+    assert out["hypothesis_scores"].shape == (2, 60) and out["canonical_shape"].shape == (2, 400, 3)
+    for b in range(2):
+        R, t, res = icp60(obs[b], tmpl, iters=10)
+        j = int(np.argmin(out["hypothesis_scores"][b]))
+        assert rotation_angle_deg(out["hypothesis_rotations"][b, j].astype(np.float64), R) < 1e-3
+        assert abs(out["hypothesis_scores"][b, j] - res) < 1e-6
+
+
 def test_calibrate_model_rotated_inputs_recover_offset():
     """calibrate_model(..., rotations=...) undoes the presented rotation: a perfectly equivariant fake model whose
     frame is offset by δR from the category frame yields δR back (within 1°)."""

@@ -17,7 +17,7 @@ from scipy.spatial import cKDTree
 from equipose import icosahedral
 from equipose.errors import InvalidPointsError
 
-__all__ = ["kabsch", "icp_multi", "icp60"]
+__all__ = ["kabsch", "icp_multi", "icp60", "icp60_outputs"]
 
 
 def kabsch(src: np.ndarray, dst: np.ndarray) -> tuple:
@@ -75,3 +75,27 @@ def icp60(observed: np.ndarray, template: np.ndarray, iters: int = 30, bidirecti
     R, t, res = icp_multi(x, y, A, t0, iters=iters, bidirectional=bidirectional)
     j = int(np.argmin(res))
     return R[j], t[j], float(res[j])
+
+
+def icp60_outputs(model_points: np.ndarray, template: np.ndarray, iters: int = 30, bidirectional: bool = False) -> dict:
+    """ICP-60 in the network's output contract, so the SDK's selection and calibration apply unchanged.
+
+    Convention: ``model_points`` [B, N, 3] model units; ``template`` [M, 3] in the frame the hypotheses refer to (the
+    network's learned frame when it is the model's own canonical shape). Returns numpy ``hypothesis_rotations``
+    [B, 60, 3, 3], ``hypothesis_translations`` [B, 60, 3], ``hypothesis_scores`` [B, 60] (final residual; lower is
+    better, as the chamfer scores) and ``canonical_shape`` [B, M, 3] (the template).
+    """
+    x = np.asarray(model_points, np.float64)
+    if x.ndim != 3 or x.shape[-1] != 3:
+        raise InvalidPointsError(f"ICP-60 outputs need model points [B, N, 3], got {x.shape}")
+    y = np.asarray(template, np.float64)
+    A = icosahedral.ANCHORS.astype(np.float64)                                 # [60, 3, 3]
+    tree = cKDTree(y)
+    Rs, ts, rs = [], [], []
+    for xb in x:
+        t0 = xb.mean(0)[None] - np.einsum("jik,k->ji", A, y.mean(0))           # [60, 3]
+        R, t, res = icp_multi(xb, y, A, t0, iters=iters, bidirectional=bidirectional, tree=tree)
+        Rs.append(R); ts.append(t); rs.append(res)
+    return {"hypothesis_rotations": np.stack(Rs).astype(np.float32), "hypothesis_translations": np.stack(ts).astype(np.float32),
+            "hypothesis_scores": np.stack(rs).astype(np.float32),
+            "canonical_shape": np.broadcast_to(y.astype(np.float32), (len(x),) + y.shape).copy()}
