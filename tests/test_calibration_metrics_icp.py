@@ -130,8 +130,8 @@ def test_icp60_outputs_follow_the_model_contract():
     for b in range(2):
         R, t, res = icp60(obs[b], tmpl, iters=10)
         j = int(np.argmin(out["hypothesis_scores"][b]))
-        assert rotation_angle_deg(out["hypothesis_rotations"][b, j].astype(np.float64), R) < 1e-3
-        assert abs(out["hypothesis_scores"][b, j] - res) < 1e-6
+        assert rotation_angle_deg(out["hypothesis_rotations"][b, j].astype(np.float64), R) < 0.05           # float32 outputs
+        assert abs(out["hypothesis_scores"][b, j] - res) < 1e-6 * max(1.0, res)
 
 
 def test_calibrate_model_rotated_inputs_recover_offset():
