@@ -4,6 +4,8 @@ Convention: an organized cloud (height > 1) with fields x, y, z in metres, camer
 ``depth`` [H, W] uint16 millimetres (0 = invalid) and ``K`` [3, 3] recovered by least squares from
 ``u = fx · x/z + cx``, ``v = fy · y/z + cy`` over the valid pixels (exact for a pinhole cloud). Colour fields ``rgb``
 (packed float) or ``rgba`` (uint32) become ``rgb`` [H, W, 3] BGR uint8. ``binary_compressed`` (LZF) files are read.
+``read_organized_cloud`` also returns the metric ``xyz`` [H, W, 3] and every other scalar field (e.g. ``label``) as
+[H, W] arrays of the file's dtype.
 """
 from __future__ import annotations
 
@@ -15,7 +17,7 @@ from ..errors import SourceError
 from ..result import FrameError
 from .base import Frame, FrameSource
 
-__all__ = ["PcdSource", "read_organized_pcd", "intrinsics_from_organized"]
+__all__ = ["PcdSource", "read_organized_pcd", "read_organized_cloud", "intrinsics_from_organized"]
 
 
 def intrinsics_from_organized(xyz: np.ndarray) -> np.ndarray:
@@ -36,8 +38,13 @@ def intrinsics_from_organized(xyz: np.ndarray) -> np.ndarray:
     return np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
 
 
-def read_organized_pcd(path) -> tuple:
-    """PCD file → (depth [H, W] uint16 mm, K [3, 3], rgb [H, W, 3] BGR uint8 or None). Raises ``SourceError``."""
+def read_organized_cloud(path) -> dict:
+    """Organized PCD file → dict. Raises ``SourceError``.
+
+    Convention: keys ``xyz`` [H, W, 3] float32 metres, camera frame (NaN = invalid), ``depth`` [H, W] uint16 mm
+    (0 = invalid), ``K`` [3, 3] float64, ``rgb`` [H, W, 3] BGR uint8 or None, ``fields`` {name: [H, W] array} for
+    every other single-count field of the file (e.g. ``label`` uint32 of the mOSD clouds).
+    """
     try:
         from pypcd4 import PointCloud
     except ImportError:
@@ -70,7 +77,19 @@ def read_organized_pcd(path) -> tuple:
             u = u.reshape(H, W)
             rgb = np.stack([(u & 255), (u >> 8) & 255, (u >> 16) & 255], axis=2).astype(np.uint8)  # BGR
             break
-    return depth, K, rgb
+    extra = {}
+    counts = dict(zip(fields, getattr(pc.metadata, "count", [1] * len(fields))))
+    for name in fields:
+        if name in ("x", "y", "z", "rgb", "rgba") or name.startswith("_") or counts.get(name, 1) != 1:
+            continue
+        extra[name] = pc.numpy((name,)).reshape(H, W)                          # [H, W] file dtype
+    return {"xyz": xyz, "depth": depth, "K": K, "rgb": rgb, "fields": extra}
+
+
+def read_organized_pcd(path) -> tuple:
+    """PCD file → (depth [H, W] uint16 mm, K [3, 3], rgb [H, W, 3] BGR uint8 or None). Raises ``SourceError``."""
+    cloud = read_organized_cloud(path)
+    return cloud["depth"], cloud["K"], cloud["rgb"]
 
 
 class PcdSource(FrameSource):
