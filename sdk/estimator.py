@@ -18,6 +18,7 @@ from . import crop as _crop
 from .errors import ConfigError, EquiposeError, InvalidPointsError, ModelFormatError, RegionError
 from .hypotheses import apply_calibration, canonicalise_rotation, parse_symmetry, select_hypothesis
 from .metadata import decode_metadata
+from .refine import refine_hypotheses
 from .result import FrameError, PoseResult
 
 __all__ = ["PoseEstimator", "INPUT_NAME", "OUTPUT_NAMES"]
@@ -38,6 +39,9 @@ class PoseEstimator:
         threads: onnxruntime intra-op threads (None = onnxruntime's default, the physical core count).
         crop_options: defaults for ``equipose.crop.crop_points`` (e.g. ``{"max_depth": 2.0}``).
         top_k: hypotheses listed in each result.
+        refine: ICP re-scoring (``equipose.refine``): the ``refine`` best hypotheses are refined by ICP against the
+            model's own predicted canonical shape and re-ranked by residual (0 = off: the network's argmin).
+        refine_iters: ICP iterations per refined hypothesis.
 
     Attribute ``runner``: None (onnxruntime, ``run_model``) or a callable with ``run_model``'s contract
     (model points [B, N, 3] float32 → the 4 output arrays) used in its place by every ``predict*`` call; ``equipose
@@ -47,7 +51,8 @@ class PoseEstimator:
     ``ModelVersionError`` (metadata format mismatch), ``MetadataError`` (missing/malformed keys).
     """
 
-    def __init__(self, model_path, threads: int | None = None, *, crop_options: dict | None = None, top_k: int = 5):
+    def __init__(self, model_path, threads: int | None = None, *, crop_options: dict | None = None, top_k: int = 5,
+                 refine: int = 0, refine_iters: int = 10):
         import onnxruntime as ort
 
         path = pathlib.Path(model_path)
@@ -75,7 +80,11 @@ class PoseEstimator:
         self.metadata = decode_metadata(props, source=path.name)
         self.path = path
         self.runner = None
+        if not isinstance(refine, int) or refine < 0 or not isinstance(refine_iters, int) or refine_iters < 1:
+            raise ConfigError(f"refine must be an int ≥ 0 and refine_iters an int ≥ 1, got {refine!r}, {refine_iters!r}")
+        self.refine, self.refine_iters = refine, refine_iters
         self.category = str(self.metadata["category"])
+        self.partial = bool(self.metadata["partial"])
         self.num_points = int(self.metadata["num_points"])
         self.num_canonical_points = int(self.metadata["num_canonical_points"])
         self.scale = float(self.metadata["scale"])
@@ -144,6 +153,9 @@ class PoseEstimator:
         t_all = outputs["hypothesis_translations"][b]                           # [60, 3] model units
         s_all = outputs["hypothesis_scores"][b]                                 # [60]
         canon = np.asarray(outputs["canonical_shape"][b], np.float64)           # [M, 3] learned frame, model units
+        if self.refine:                                                         # ICP re-scoring, learned frame
+            R_all, t_all, s_all = refine_hypotheses(prep.model_points, canon, R_all, t_all, s_all, k=self.refine,
+                                                    iters=self.refine_iters, bidirectional=not self.partial)
         dR, dt = self.calibration_rotation, self.calibration_translation
         R_cat, t_cat = apply_calibration(R_all, t_all, dR, dt)                  # [60, 3, 3], [60, 3]
         sel = select_hypothesis(R_cat, t_cat, s_all, symmetry=self.symmetry, top_k=self.top_k, prefer=prefer,

@@ -28,6 +28,8 @@ def add_arguments(p) -> None:
     p.add_argument("--data-root", dest="data_root")
     p.add_argument("--cache-dir", dest="cache_dir")
     p.add_argument("--threads", type=int, default=1, help="torch threads")
+    p.add_argument("--refine", type=int, default=0,
+                   help="with --model: ICP re-scoring of the K best hypotheses in the SDK (PoseEstimator(refine=K))")
     p.add_argument("--store-metrics", dest="store_metrics", action="store_true",
                    help="with --model: write this table into the model file's 'metrics' metadata (what "
                         "'equipose models' lists)")
@@ -38,7 +40,8 @@ def run(args) -> int:
     torch.set_num_threads(max(1, args.threads))
     res = evaluate(category=args.category, mode=args.mode, checkpoint=args.checkpoint, model_path=args.model,
                    data_root=args.data_root, limit=args.limit, icp_templates=args.icp_templates,
-                   icp_points=args.icp_points, icp_iters=args.icp_iters, icp_samples=args.icp_samples, cache_dir=args.cache_dir)
+                   icp_points=args.icp_points, icp_iters=args.icp_iters, icp_samples=args.icp_samples, cache_dir=args.cache_dir,
+                   refine=args.refine)
     if args.store_metrics and not args.model:
         raise ConfigError("--store-metrics needs --model (the metrics describe that file)")
     print(format_table(res))

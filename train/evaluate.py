@@ -55,10 +55,11 @@ def predict_checkpoint(model, ckpt: dict, samples: list, batch_size: int = 16) -
     return R, t_m
 
 
-def predict_onnx(model_path, samples: list, batch_size: int = 16) -> tuple:
-    """The exported model through ``equipose.PoseEstimator`` (what users run). Returns (R, t metres)."""
+def predict_onnx(model_path, samples: list, batch_size: int = 16, refine: int = 0) -> tuple:
+    """The exported model through ``equipose.PoseEstimator`` (what users run; ``refine``: its ICP re-scoring of
+    the k best hypotheses). Returns (R, t metres, estimator)."""
     from equipose import PoseEstimator
-    est = PoseEstimator(model_path)
+    est = PoseEstimator(model_path, refine=refine)
     Rs, ts = [], []
     for i in range(0, len(samples), batch_size):
         for r in est.predict_points_batch([s["points_m"] for s in samples[i:i + batch_size]]):
@@ -104,12 +105,14 @@ def _row(method, R, t, samples, symmetry, unsigned):
 
 def evaluate(*, category: str, mode: str, checkpoint=None, model_path=None, data_root=None, limit: int | None = None,
              icp_templates: int = 3, icp_points: int = 256, icp_iters: int = 20, template_points: int = 512,
-             icp_samples: int | None = None,
+             icp_samples: int | None = None, refine: int = 0,
              seed: int = 0, cache_dir=None, progress: bool = True, log=print) -> dict:
     """Run both methods on one test set; returns the result dict (JSON layout above) plus ``_errors`` arrays."""
     root = data_root or default_data_root()
     if (checkpoint is None) == (model_path is None):
         raise ConfigError("give exactly one of --checkpoint or --model")
+    if refine and checkpoint is not None:
+        raise ConfigError("--refine applies to an exported model (--model), the SDK's re-scoring")
     if checkpoint is not None:
         from .checkpoint import model_from_checkpoint
         model, ckpt = model_from_checkpoint(checkpoint)
@@ -131,29 +134,31 @@ def evaluate(*, category: str, mode: str, checkpoint=None, model_path=None, data
     if checkpoint is not None:
         R, t = predict_checkpoint(model, ckpt, samples)
     else:
-        R, t, _ = predict_onnx(model_path, samples)
+        R, t, _ = predict_onnx(model_path, samples, refine=refine)
     ours_s = time.perf_counter() - t0
-    row, r_err, t_err = _row("equipose", R, t, samples, symmetry, unsigned)
+    row, r_err, t_err = _row("equipose" + (f"+icp{refine}" if refine else ""), R, t, samples, symmetry, unsigned)
     rows, errors = [row], {"equipose": (r_err, t_err)}
 
-    clouds = _icp_template_clouds(root, category)
-    pick = np.random.default_rng(seed).choice(len(clouds), size=icp_templates, replace=False)
-    templates = [clouds[i][farthest_point_order(clouds[i], template_points)].astype(np.float64) for i in pick]
-    icp_idx = np.arange(len(samples))
-    if icp_samples and icp_samples < len(samples):                # evenly spaced subset (cost control)
-        icp_idx = np.linspace(0, len(samples) - 1, icp_samples).round().astype(int)
-    icp_set = [samples[i] for i in icp_idx]
-    t0 = time.perf_counter()
-    per = run_icp(icp_set, templates, bidirectional=(mode == "complete"), obs_points=icp_points, iters=icp_iters,
-                  progress=progress)
-    icp_s = time.perf_counter() - t0
-    trows, r_all, t_all = [], [], []
-    for Ri, ti in per:
-        rw, re, te = _row("icp60", Ri, ti, icp_set, symmetry, unsigned)
-        trows.append(rw); r_all.append(re); t_all.append(te)
-    icp_row = {"method": "icp60", **{k: float(np.mean([r[k] for r in trows])) for k in ROW_KEYS[1:]}}
-    rows.append(icp_row)
-    errors["icp60"] = (np.concatenate(r_all), np.concatenate(t_all))
+    pick, trows, icp_set, icp_s = [], [], [], 0.0
+    if icp_templates > 0:                                          # 0: ours only
+        clouds = _icp_template_clouds(root, category)
+        pick = np.random.default_rng(seed).choice(len(clouds), size=icp_templates, replace=False)
+        templates = [clouds[i][farthest_point_order(clouds[i], template_points)].astype(np.float64) for i in pick]
+        icp_idx = np.arange(len(samples))
+        if icp_samples and icp_samples < len(samples):                # evenly spaced subset (cost control)
+            icp_idx = np.linspace(0, len(samples) - 1, icp_samples).round().astype(int)
+        icp_set = [samples[i] for i in icp_idx]
+        t0 = time.perf_counter()
+        per = run_icp(icp_set, templates, bidirectional=(mode == "complete"), obs_points=icp_points, iters=icp_iters,
+                      progress=progress)
+        icp_s = time.perf_counter() - t0
+        r_all, t_all = [], []
+        for Ri, ti in per:
+            rw, re, te = _row("icp60", Ri, ti, icp_set, symmetry, unsigned)
+            trows.append(rw); r_all.append(re); t_all.append(te)
+        icp_row = {"method": "icp60", **{k: float(np.mean([r[k] for r in trows])) for k in ROW_KEYS[1:]}}
+        rows.append(icp_row)
+        errors["icp60"] = (np.concatenate(r_all), np.concatenate(t_all))
     log(f"evaluated {len(samples)} samples: ours {ours_s:.1f} s; ICP-60 on {len(icp_set)} × {icp_templates} templates "
         f"{icp_s:.1f} s")
     return {"category": category, "mode": mode, "n": len(samples), "rows": rows, "_errors": errors,

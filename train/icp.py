@@ -16,52 +16,9 @@ from scipy.spatial import cKDTree
 
 from equipose import icosahedral
 from equipose.errors import InvalidPointsError
+from equipose.refine import icp_multi, kabsch  # noqa: F401  (re-exported; the ICP core lives in the SDK)
 
 __all__ = ["kabsch", "icp_multi", "icp60", "icp60_outputs"]
-
-
-def kabsch(src: np.ndarray, dst: np.ndarray) -> tuple:
-    """Batched least-squares rigid fit dst ≈ R src + t. src, dst [B, K, 3] → R [B, 3, 3], t [B, 3]."""
-    ms, md = src.mean(1, keepdims=True), dst.mean(1, keepdims=True)          # [B, 1, 3]
-    H = np.einsum("bki,bkj->bij", src - ms, dst - md)                         # [B, 3, 3]
-    U, _, Vt = np.linalg.svd(H)
-    d = np.sign(np.linalg.det(np.einsum("bij,bjk->bik", U, Vt).transpose(0, 2, 1)))
-    D = np.tile(np.eye(3), (len(H), 1, 1))
-    D[:, 2, 2] = d
-    R = np.einsum("bji,bjk,blk->bil", Vt, D, U)                               # V D Uᵀ
-    t = md[:, 0] - np.einsum("bij,bj->bi", R, ms[:, 0])
-    return R, t
-
-
-def icp_multi(observed: np.ndarray, template: np.ndarray, R0: np.ndarray, t0: np.ndarray, iters: int = 30,
-              bidirectional: bool = False, tree: cKDTree | None = None) -> tuple:
-    """ICP from several initial poses at once. R0 [J, 3, 3], t0 [J, 3] → (R [J,3,3], t [J,3], residual [J]).
-
-    Residual: mean squared nearest-neighbour distance (observation→template, plus the reverse if bidirectional).
-    """
-    x = np.asarray(observed, np.float64)                                       # [N, 3]
-    y = np.asarray(template, np.float64)                                       # [M, 3]
-    if x.ndim != 2 or x.shape[1] != 3 or len(x) < 3 or y.ndim != 2 or y.shape[1] != 3 or len(y) < 3:
-        raise InvalidPointsError(f"ICP needs [N≥3, 3] point arrays, got {x.shape} and {y.shape}")
-    tree = tree or cKDTree(y)
-    obs_tree = cKDTree(x) if bidirectional else None
-    R, t = np.array(R0, np.float64), np.array(t0, np.float64)
-    J, N, M = len(R), len(x), len(y)
-    for it in range(iters + 1):
-        local = np.einsum("jni,jik->jnk", (x[None] - t[:, None]), R)           # [J, N, 3] = Rᵀ(x − t)
-        d1, i1 = tree.query(local.reshape(-1, 3))
-        res = (d1.reshape(J, N) ** 2).mean(1)                                  # [J]
-        src, dst = y[i1.reshape(J, N)], np.broadcast_to(x, (J, N, 3))         # template pts ↔ observed pts
-        if bidirectional:
-            posed = np.einsum("mk,jik->jmi", y, R) + t[:, None]               # [J, M, 3] = R y + t
-            d2, i2 = obs_tree.query(posed.reshape(-1, 3))
-            res = res + (d2.reshape(J, M) ** 2).mean(1)
-            src = np.concatenate([src, np.broadcast_to(y, (J, M, 3))], 1)
-            dst = np.concatenate([dst, x[i2.reshape(J, M)]], 1)
-        if it == iters:
-            break
-        R, t = kabsch(src, np.ascontiguousarray(dst))
-    return R, t, res
 
 
 def icp60(observed: np.ndarray, template: np.ndarray, iters: int = 30, bidirectional: bool = False) -> tuple:
