@@ -9,13 +9,14 @@ Convention:
 """
 from __future__ import annotations
 
+import json
 import pathlib
 import time
 
 import numpy as np
 
 from . import crop as _crop
-from .errors import ConfigError, EquiposeError, InvalidPointsError, ModelFormatError, RegionError
+from .errors import ConfigError, EquiposeError, InvalidPointsError, MetadataError, ModelFormatError, RegionError
 from .hypotheses import apply_calibration, canonicalise_rotation, parse_symmetry, select_hypothesis
 from .metadata import decode_metadata
 from .refine import refine_hypotheses
@@ -41,7 +42,10 @@ class PoseEstimator:
         top_k: hypotheses listed in each result.
         refine: ICP re-scoring (``equipose.refine``): the ``refine`` best hypotheses are refined by ICP against the
             model's own predicted canonical shape and re-ranked by residual (0 = off: the network's argmin).
-        refine_iters: ICP iterations per refined hypothesis.
+            "auto" (default): what the model file was calibrated for (metadata ``refine_calibration``, written by
+            ``equipose calibrate --model M --refine K``), else 0. With refinement the refined calibration is used
+            when the file has one.
+        refine_iters: ICP iterations per refined hypothesis (default: the file's, else 10).
 
     Attribute ``runner``: None (onnxruntime, ``run_model``) or a callable with ``run_model``'s contract
     (model points [B, N, 3] float32 → the 4 output arrays) used in its place by every ``predict*`` call; ``equipose
@@ -52,7 +56,7 @@ class PoseEstimator:
     """
 
     def __init__(self, model_path, threads: int | None = None, *, crop_options: dict | None = None, top_k: int = 5,
-                 refine: int = 0, refine_iters: int = 10):
+                 refine: int | str = "auto", refine_iters: int | None = None):
         import onnxruntime as ort
 
         path = pathlib.Path(model_path)
@@ -80,9 +84,6 @@ class PoseEstimator:
         self.metadata = decode_metadata(props, source=path.name)
         self.path = path
         self.runner = None
-        if not isinstance(refine, int) or refine < 0 or not isinstance(refine_iters, int) or refine_iters < 1:
-            raise ConfigError(f"refine must be an int ≥ 0 and refine_iters an int ≥ 1, got {refine!r}, {refine_iters!r}")
-        self.refine, self.refine_iters = refine, refine_iters
         self.category = str(self.metadata["category"])
         self.partial = bool(self.metadata["partial"])
         self.num_points = int(self.metadata["num_points"])
@@ -93,6 +94,27 @@ class PoseEstimator:
         self.random_init = bool(self.metadata["random_init"])
         self.calibration_rotation = np.asarray(self.metadata["calibration_rotation"], np.float64)     # [3, 3]
         self.calibration_translation = np.asarray(self.metadata["calibration_translation"], np.float64)  # [3]
+        rcal = self.metadata.get("refine_calibration")                         # optional key, JSON
+        try:
+            rcal = json.loads(rcal) if isinstance(rcal, str) else rcal
+            if rcal:
+                rcal = {"k": int(rcal["k"]), "iters": int(rcal["iters"]), "rotation": rcal["rotation"],
+                        "translation": rcal["translation"]}
+        except (ValueError, KeyError, TypeError) as e:
+            raise MetadataError(f"{path.name}: malformed refine_calibration metadata ({e}); re-run 'equipose "
+                                "calibrate --model'") from None
+        if refine == "auto":
+            refine = int(rcal["k"]) if rcal else 0
+        if refine_iters is None:
+            refine_iters = int(rcal["iters"]) if rcal else 10
+        if isinstance(refine, bool) or not isinstance(refine, int) or refine < 0 or not isinstance(refine_iters, int) \
+                or refine_iters < 1:
+            raise ConfigError(f"refine must be 'auto' or an int ≥ 0 and refine_iters an int ≥ 1, got {refine!r}, "
+                              f"{refine_iters!r}")
+        self.refine, self.refine_iters = refine, refine_iters
+        if refine and rcal:                                                     # calibrated for refined poses
+            self.calibration_rotation = np.asarray(rcal["rotation"], np.float64).reshape(3, 3)
+            self.calibration_translation = np.asarray(rcal["translation"], np.float64).reshape(3)
         self.crop_options = dict(crop_options or {})
         # the model reads N FPS-ordered points: a crop of 4·N (≥ 1024) keeps FPS coverage and bounds crop/FPS cost
         self.crop_options.setdefault("max_points", max(1024, 4 * self.num_points))

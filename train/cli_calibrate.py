@@ -16,7 +16,14 @@ from .inference import calibrate_model
 
 
 def add_arguments(p) -> None:
-    p.add_argument("--checkpoint", required=True, help="checkpoint to calibrate (updated in place unless --out)")
+    src = p.add_mutually_exclusive_group(required=True)
+    src.add_argument("--checkpoint", help="checkpoint to calibrate (updated in place unless --out)")
+    src.add_argument("--model", help="exported .onnx model: calibrate it for ICP re-scoring (--refine K) and store the "
+                                     "result in its 'refine_calibration' metadata (PoseEstimator(refine='auto') uses it)")
+    p.add_argument("--refine", type=int, default=5, help="with --model: hypotheses refined by ICP (default 5)")
+    p.add_argument("--refine-iters", dest="refine_iters", type=int, default=10, help="with --model: ICP iterations")
+    p.add_argument("--views", type=int, default=10,
+                   help="with --model and partial mode: rendered views per training instance of the cache to use")
     p.add_argument("--category", help="category (default: the checkpoint's)")
     p.add_argument("--mode", choices=["complete", "partial"], help="default: the checkpoint's")
     p.add_argument("--num", type=int, default=1024, help="category-frame training inputs used (default 1024)")
@@ -29,7 +36,33 @@ def add_arguments(p) -> None:
                         "instead of the identity pose only")
 
 
+def _run_model(args) -> int:
+    from equipose import PoseEstimator
+    from equipose.export.onnx_export import update_metadata
+
+    from .calibration import calibrate_onnx_refined
+    est = PoseEstimator(args.model, threads=1, refine=0)
+    category = args.category or est.category
+    mode = args.mode or ("partial" if est.partial else "complete")
+    root = args.data_root or default_data_root()
+    ds = make_dataset(root, category, mode, "train", est.num_points, train=True, cache_dir=args.cache_dir,
+                      render_opts={"views": args.views})
+    rng = np.random.default_rng(args.seed)
+    idx = rng.choice(len(ds), size=min(args.num, len(ds)), replace=False)
+    canon = np.stack([ds.sample(int(i), np.random.default_rng([args.seed, int(i)]))["canonical"] for i in idx])
+    cal = calibrate_onnx_refined(args.model, canon, k=args.refine, iters=args.refine_iters,
+                                 unsigned_axis=(category == "can"), seed=args.seed)
+    cal["inputs"] = f"{len(idx)} category-frame {category}/{mode} training samples"
+    update_metadata(args.model, refine_calibration=cal)
+    print(f"refined calibration (k={args.refine}, {args.refine_iters} ICP iterations) from {cal['n']} inputs: rotation "
+          f"inliers {cal['inlier_fraction']:.2f}, translation inliers {cal['translation_inlier_fraction']:.2f} "
+          f"→ {args.model} (metadata refine_calibration)")
+    return 0
+
+
 def run(args) -> int:
+    if args.model:
+        return _run_model(args)
     model, ckpt = model_from_checkpoint(args.checkpoint)
     category = args.category or ckpt["category"]
     mode = args.mode or ("partial" if ckpt["partial"] else "complete")

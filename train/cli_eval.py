@@ -28,8 +28,9 @@ def add_arguments(p) -> None:
     p.add_argument("--data-root", dest="data_root")
     p.add_argument("--cache-dir", dest="cache_dir")
     p.add_argument("--threads", type=int, default=1, help="torch threads")
-    p.add_argument("--refine", type=int, default=0,
-                   help="with --model: ICP re-scoring of the K best hypotheses in the SDK (PoseEstimator(refine=K))")
+    p.add_argument("--refine", type=int, default=None,
+                   help="with --model: ICP re-scoring of the K best hypotheses in the SDK (PoseEstimator(refine=K); "
+                        "default: the file's own setting, 'auto')")
     p.add_argument("--store-metrics", dest="store_metrics", action="store_true",
                    help="with --model: write this table into the model file's 'metrics' metadata (what "
                         "'equipose models' lists)")

@@ -55,7 +55,7 @@ def predict_checkpoint(model, ckpt: dict, samples: list, batch_size: int = 16) -
     return R, t_m
 
 
-def predict_onnx(model_path, samples: list, batch_size: int = 16, refine: int = 0) -> tuple:
+def predict_onnx(model_path, samples: list, batch_size: int = 16, refine="auto") -> tuple:
     """The exported model through ``equipose.PoseEstimator`` (what users run; ``refine``: its ICP re-scoring of
     the k best hypotheses). Returns (R, t metres, estimator)."""
     from equipose import PoseEstimator
@@ -105,13 +105,13 @@ def _row(method, R, t, samples, symmetry, unsigned):
 
 def evaluate(*, category: str, mode: str, checkpoint=None, model_path=None, data_root=None, limit: int | None = None,
              icp_templates: int = 3, icp_points: int = 256, icp_iters: int = 20, template_points: int = 512,
-             icp_samples: int | None = None, refine: int = 0,
+             icp_samples: int | None = None, refine=None,
              seed: int = 0, cache_dir=None, progress: bool = True, log=print) -> dict:
     """Run both methods on one test set; returns the result dict (JSON layout above) plus ``_errors`` arrays."""
     root = data_root or default_data_root()
     if (checkpoint is None) == (model_path is None):
         raise ConfigError("give exactly one of --checkpoint or --model")
-    if refine and checkpoint is not None:
+    if refine is not None and checkpoint is not None:
         raise ConfigError("--refine applies to an exported model (--model), the SDK's re-scoring")
     if checkpoint is not None:
         from .checkpoint import model_from_checkpoint
@@ -134,7 +134,8 @@ def evaluate(*, category: str, mode: str, checkpoint=None, model_path=None, data
     if checkpoint is not None:
         R, t = predict_checkpoint(model, ckpt, samples)
     else:
-        R, t, _ = predict_onnx(model_path, samples, refine=refine)
+        R, t, est = predict_onnx(model_path, samples, refine="auto" if refine is None else refine)
+        refine = est.refine
     ours_s = time.perf_counter() - t0
     row, r_err, t_err = _row("equipose" + (f"+icp{refine}" if refine else ""), R, t, samples, symmetry, unsigned)
     rows, errors = [row], {"equipose": (r_err, t_err)}
