@@ -294,3 +294,29 @@ def test_update_metadata_and_model_card(tiny_ckpt, tmp_path):
     assert path.read_bytes() == before
     with pytest.raises(ModelFormatError):
         update_metadata(tmp_path / "missing.onnx", metrics={})
+
+
+def test_refined_calibration_round_trip(tiny_ckpt, tmp_path, rng):
+    """calibrate_onnx_refined → refine_calibration metadata → PoseEstimator(refine='auto') uses k, iters and it."""
+    import shutil
+
+    from equipose import PoseEstimator
+    from equipose.export import update_metadata
+    from equipose.train.calibration import calibrate_onnx_refined
+    path = tmp_path / "m.onnx"
+    shutil.copy(tiny_ckpt[1], path)
+    assert PoseEstimator(path, threads=1).refine == 0                        # no refined calibration: off
+    canon = _cloud(rng, 4, 300).astype(np.float64)
+    cal = calibrate_onnx_refined(path, canon, k=3, iters=4)
+    assert cal["k"] == 3 and cal["iters"] == 4 and cal["n"] == 4
+    R = np.asarray(cal["rotation"])
+    np.testing.assert_allclose(R @ R.T, np.eye(3), atol=1e-9)
+    update_metadata(path, refine_calibration=cal)
+    est = PoseEstimator(path, threads=1)
+    assert est.refine == 3 and est.refine_iters == 4
+    np.testing.assert_allclose(est.calibration_rotation, R)
+    plain = PoseEstimator(path, threads=1, refine=0)
+    np.testing.assert_allclose(plain.calibration_rotation, CALIBRATION["rotation"])   # the network's own
+    update_metadata(path, refine_calibration={"k": 2})
+    with pytest.raises(MetadataError):
+        PoseEstimator(path, threads=1)
