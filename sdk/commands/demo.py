@@ -1,8 +1,9 @@
 """``equipose demo``: the bundled sample (a real mug-on-table frame) through the bundled model.
 
 Prints one line per object (R as a rotation vector, t in metres, confidence) and writes overlay PNGs to ``--out``
-(default ``runs/demo``). The bundled model has random weights until trained models exist — the demo says so; it shows
-the pipeline (depth → crop → FPS → ONNX → hypothesis selection → pose → overlay) and its timings, not accuracy.
+(default ``runs/demo``). For a symmetric model (cup, bowl, can) it also prints the angle between the predicted symmetry
+axis and the frame's support-plane normal (a mug on a table stands upright: 0°). A model with random weights is
+flagged: it shows the pipeline (depth → crop → FPS → ONNX → hypothesis selection → pose → overlay), not accuracy.
 """
 from __future__ import annotations
 
@@ -55,6 +56,9 @@ def run(args) -> int:
     img = to_bgr(frame.rgb if frame.rgb is not None else frame.depth)
     for m in masks:
         img = draw_mask(img, m)
+    from equipose.crop import depth_to_metres, find_support_plane
+    from equipose.realdata import axis_table_angle
+    plane = find_support_plane(depth_to_metres(frame.depth, "mm"), K)            # (normal, offset) or None
     records = []
     for i, r in enumerate(results):
         if not hasattr(r, "rotation"):
@@ -66,8 +70,14 @@ def run(args) -> int:
         print(f"  {r.summary()}")
         print(f"      R={R}  t(m)={np.round(r.translation, 3).tolist()}  "
               f"timings ms: " + ", ".join(f"{k} {v:.1f}" for k, v in r.timings.items() if k != "batch"))
+        rec = r.to_dict()
+        if r.symmetry_axis is not None and plane is not None:                 # a resting cylinder: upright or lying
+            a = axis_table_angle(r.symmetry_axis, plane[0])
+            rec["axis_vs_table"] = {"angle_deg": a.angle, "deviation_deg": a.deviation, "pose": a.pose}
+            print(f"      symmetry axis vs table normal: {a.angle:.1f}° → {a.pose}, {a.deviation:.1f}° from the "
+                  "nearer of upright/lying")
         img = r.plot(img, K)
-        records.append(r.to_dict())
+        records.append(rec)
     cv2.imwrite(str(out / "overlay.png"), img)
     cv2.imwrite(str(out / "depth.png"), to_bgr(frame.depth))
     (out / "results.json").write_text(json.dumps({"model": est.info, "objects": records}, indent=1))
