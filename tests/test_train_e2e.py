@@ -45,6 +45,12 @@ def test_train_resume_calibrate_eval(tmp_path, data_root, mode):
         assert 0 <= r["rot_median_deg"] <= 180 and 0 <= r["acc_5deg"] <= 1
     assert png.read_bytes()[:4] == b"\x89PNG"
 
+    warm = tmp_path / "warm"                                         # --init: weights only, fresh step counter
+    assert main(train[:-10] + ["--val-every", "100", "--out", str(warm), "--cache-dir", str(cache), "--views", "2",
+                               "--steps", "1", "--init", str(out / "latest.pt")]) == 0
+    w = load_checkpoint(warm / "latest.pt")
+    assert w["step"] == 1 and w["training"]["config"]["init"] == str(out / "latest.pt")
+
 
 def test_ddp_two_processes_gloo(tmp_path, data_root):
     out = tmp_path / "ddp"

@@ -58,6 +58,8 @@ class TrainConfig:
     test_views: int = 5                   # partial: rendered views per test instance
     cache_dir: str = ""
     device: str = ""                      # "" = cuda when present, else cpu
+    init: str = ""                        # warm start: weights of this checkpoint (same preset and mode), fresh
+                                          # optimiser and step 0 (e.g. a related category); ignored on --resume
 
     @classmethod
     def from_sources(cls, config_file=None, **overrides) -> "TrainConfig":
@@ -157,6 +159,15 @@ def train(cfg: TrainConfig, resume: bool = False, log=print) -> pathlib.Path:
             log(f"resumed from {ckpt_path} at step {step}")
     elif resume and rank == 0:
         log(f"no checkpoint at {ckpt_path}; starting from scratch")
+    if step == 0 and cfg.init:
+        ck = load_checkpoint(cfg.init)
+        try:
+            model.load_state_dict(ck["state_dict"])
+        except RuntimeError as e:
+            raise ConfigError(f"--init {cfg.init}: weights do not fit preset {cfg.preset!r} / mode {cfg.mode!r} "
+                              f"({str(e).splitlines()[0]})") from None
+        if rank == 0:
+            log(f"initialised from {cfg.init} (its step {ck.get('step')}, category {ck.get('category')!r})")
     model.to(device)
     net = model
     if world > 1:
