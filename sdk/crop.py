@@ -28,6 +28,7 @@ from .geometry import farthest_point_order
 
 __all__ = ["CropResult", "PreparedPoints", "MIN_POINTS", "depth_to_metres", "check_intrinsics", "check_box",
            "check_mask", "crop_points", "prepare_points", "check_points", "statistical_outlier_mask",
+           "organized_outlier_mask",
            "nearest_depth_cluster", "auto_masks", "fit_plane_ransac", "fps_order", "find_support_plane"]
 
 MIN_POINTS = 64                 # fewer points than this after the crop cannot give a meaningful pose
@@ -262,6 +263,45 @@ def statistical_outlier_mask(points: np.ndarray, k: int = 8, std_ratio: float = 
     return mean_d <= thr
 
 
+def organized_outlier_mask(points: np.ndarray, rows: np.ndarray, cols: np.ndarray, step: int = 1,
+                           std_ratio: float = 2.0) -> np.ndarray:
+    """Statistical outlier removal on the pixel grid (organized clouds): neighbours are the 8 adjacent grid cells.
+
+    Convention: ``points`` [P, 3] metres, back-projected from pixels (``rows``, ``cols``) [P] that lie on a regular
+    grid of pitch ``step`` (the crop's subsampling). For each point the mean distance to its present grid neighbours
+    is compared with mean + ``std_ratio`` · std of that statistic over all points; points with no neighbour at all
+    are outliers (isolated flying pixels). Same criterion as ``statistical_outlier_mask`` but the neighbourhood
+    comes from the image instead of a k-d tree (about 10× faster on a crop). Returns [P] bool inliers.
+    """
+    P = len(points)
+    if P < 10:
+        return np.ones(P, dtype=bool)
+    r = (rows - rows.min()) // step                                             # [P] grid coordinates
+    c = (cols - cols.min()) // step
+    h, w = int(r.max()) + 3, int(c.max()) + 3
+    grid = np.full((h, w, 3), np.nan, np.float64)                               # [h, w, 3], 1-cell NaN border
+    grid[r + 1, c + 1] = points
+    total = np.zeros(P)
+    count = np.zeros(P)
+    for dr in (-1, 0, 1):
+        for dc in (-1, 0, 1):
+            if dr == 0 and dc == 0:
+                continue
+            nb = grid[r + 1 + dr, c + 1 + dc]                                   # [P, 3] (NaN = absent)
+            dist = np.sqrt(((nb - points) ** 2).sum(1))                         # [P]
+            ok = np.isfinite(dist)
+            total[ok] += dist[ok]
+            count += ok
+    has = count > 0
+    if has.sum() < 10:
+        return has
+    mean_d = total[has] / count[has]                                            # [P']
+    thr = mean_d.mean() + std_ratio * mean_d.std()
+    keep = np.zeros(P, dtype=bool)
+    keep[has] = mean_d <= thr
+    return keep
+
+
 def nearest_depth_cluster(z: np.ndarray, gap_m: float = 0.03, rel_gap: float = 0.03,
                           min_fraction: float = 0.1) -> np.ndarray:
     """Keep the nearest depth cluster that is big enough (background rejection inside a box).
@@ -304,35 +344,36 @@ def crop_points(depth, K, *, box=None, mask=None, depth_unit="mm", image_size=No
     ``support_plane`` = precomputed (normal, offset) from ``find_support_plane``; default on for a box without a
     mask, and skipped when the frame has no dominant plane or too few points would remain) → regular pixel-grid
     subsampling to at most ``max_points`` → background rejection (nearest depth cluster; default on for a box
-    without a mask) → statistical outlier removal (k = ``outlier_k``, ``outlier_std``; 0 disables).
+    without a mask) → statistical outlier removal (``outlier_std``; 0 disables): on the pixel grid with its 8
+    neighbours (``organized_outlier_mask``) for the default ``outlier_k`` = 8, else k-d tree with k = ``outlier_k``.
     Raises ``DepthDtypeError``, ``DepthUnitError``, ``EmptyDepthError``, ``IntrinsicsError``, ``RegionError``,
     ``TooFewPointsError``. ``check_plausible=False`` skips the unit plausibility check (already-validated frames).
     """
     d = depth_to_metres(depth, depth_unit, check_plausible=check_plausible)     # [H, W] float32 m
     H, W = d.shape
     Kf = check_intrinsics(K, (H, W), image_size)                                # [3, 3]
-    region = np.ones((H, W), dtype=bool)                                        # [H, W]
-    y0 = x0 = 0
+    y0, x0, y1, x1 = 0, 0, H, W
     if box is not None:
         x0, y0, x1, y1 = check_box(box, (H, W))
-        region[:] = False
-        region[y0:y1, x0:x1] = True
+    win = d[y0:y1, x0:x1]                                                       # [h, w] the box window (a view)
+    region = np.ones(win.shape, dtype=bool)                                     # [h, w]
     if mask is not None:
-        region &= check_mask(mask, (H, W))
+        region &= check_mask(mask, (H, W))[y0:y1, x0:x1]
         if not region.any():
             raise RegionError("the mask and the box do not overlap; pass a box that contains the mask")
     diag = {"region": int(region.sum())}
-    valid = region & (d > 0)                                                    # [H, W]
+    valid = region & (win > 0)                                                  # [h, w]
     diag["valid"] = int(valid.sum())
     if diag["valid"] == 0:
         raise EmptyDepthError(f"no valid depth inside the region ({diag['region']} pixels); the object may be too close, "
                               "too far, or too dark/shiny for the depth camera — check the box/mask and the depth frame")
-    valid &= (d >= min_depth) & (d <= max_depth)
+    valid &= (win >= min_depth) & (win <= max_depth)
     diag["gated"] = int(valid.sum())
     if diag["gated"] < min_points:
         raise TooFewPointsError(f"{diag['gated']} valid pixels within {min_depth}–{max_depth} m in the region (need "
                                 f"≥ {min_points}); enlarge the box/mask or change min_depth/max_depth")
-    rows, cols = np.nonzero(valid)                                              # [P], [P]
+    rows, cols = np.nonzero(valid)                                              # [P], [P] in the window
+    rows, cols = rows + y0, cols + x0                                           # frame pixels
     if remove_support_plane is None:
         remove_support_plane = box is not None and mask is None
     if remove_support_plane:
@@ -346,11 +387,13 @@ def crop_points(depth, K, *, box=None, mask=None, depth_unit="mm", image_size=No
             if above.sum() >= min_points:
                 rows, cols = rows[above], cols[above]
                 diag["above_plane"] = int(above.sum())
+    s = 1                                                                       # grid pitch of the kept pixels
     if len(rows) > max_points:                                                  # regular grid, deterministic
         s = int(math.ceil(math.sqrt(len(rows) / max_points)))
         keep = ((rows - y0) % s == 0) & ((cols - x0) % s == 0)
         if keep.sum() < min_points:                                             # pathological sparse layouts
             keep = np.zeros(len(rows), bool); keep[:: int(math.ceil(len(rows) / max_points))] = True
+            s = 0                                                               # not a grid any more
         rows, cols = rows[keep], cols[keep]
     diag["subsampled"] = int(len(rows))
     z = d[rows, cols].astype(np.float64)                                        # [P]
@@ -365,7 +408,10 @@ def crop_points(depth, K, *, box=None, mask=None, depth_unit="mm", image_size=No
         diag["cluster"] = int(keep.sum())
         diag["cluster_depth_m"] = float(np.median(pts[:, 2]))
     if outlier_std and outlier_std > 0:
-        keep = statistical_outlier_mask(pts, k=outlier_k, std_ratio=outlier_std)  # [P]
+        if s and outlier_k == 8:                                                # organized: the 8 grid neighbours
+            keep = organized_outlier_mask(pts, rows - y0, cols - x0, step=s, std_ratio=outlier_std)  # [P]
+        else:
+            keep = statistical_outlier_mask(pts, k=outlier_k, std_ratio=outlier_std)  # [P]
         pts, rows, cols = pts[keep], rows[keep], cols[keep]
     diag["inliers"] = int(len(pts))
     if len(pts) < min_points:

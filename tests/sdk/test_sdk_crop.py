@@ -56,6 +56,22 @@ def test_outliers_and_background_clusters_are_removed():
     assert keep[:500].all() and not keep[500:].any()
 
 
+def test_organized_outlier_mask_finds_flying_pixels_on_the_grid():
+    from equipose.crop import organized_outlier_mask
+    rows, cols = np.mgrid[0:60:2, 0:80:2]                                        # a pitch-2 pixel grid
+    rows, cols = rows.ravel(), cols.ravel()
+    z = 0.8 + 0.001 * rows / 60                                                  # a gently tilted surface
+    pts = np.stack([(cols - 40) * z / 500, (rows - 30) * z / 500, z], 1)
+    flying = np.array([100, 500, 900])
+    pts[flying, 2] += 0.25                                                       # depth-edge artefacts
+    lone = np.array([0])                                                         # a pixel without neighbours
+    keep = organized_outlier_mask(np.delete(pts, [1, 40, 41], 0), np.delete(rows, [1, 40, 41]),
+                                  np.delete(cols, [1, 40, 41]), step=2)
+    assert not keep[lone].any() and not keep[flying - 3].any() and keep.mean() > 0.95
+    both = organized_outlier_mask(pts, rows, cols, step=2)
+    assert not both[flying].any()
+
+
 def test_prepare_points_is_fps_ordered_and_invertible():
     depth, hit = sphere_scene(CENTRE, RADIUS)
     res = crop_points(depth, K_VGA, mask=hit)
