@@ -36,7 +36,7 @@ from equipose.geometry import random_rotations
 
 __all__ = ["camera_matrix", "rasterize_mesh", "splat_surfels", "surfels_from_points", "depth_to_uint16",
            "RenderSettings", "sample_pose", "render_frame", "render_views", "ensure_cache", "CATEGORY_DISTANCE",
-           "default_cache_dir", "render_mesh_cache"]
+           "default_cache_dir", "render_mesh_cache", "write_partial_cache"]
 
 # reference camera distances (spec §7), object normalised to max radius 1
 CATEGORY_DISTANCE = {"airplane": 1.8, "car": 2.0, "bottle": 2.0, "bowl": 2.3, "sofa": 2.3, "chair": 2.3,
@@ -288,15 +288,12 @@ def render_mesh_cache(mesh_path, out_path, views: int = 10, distance_m: float = 
     dt = time.perf_counter() - t0
     if not out:
         raise ConfigError(f"no view of {mesh_path} could be rendered")
-    pts = [o[0] for o in out]
-    offsets = np.concatenate([[0], np.cumsum([len(p) for p in pts])]).astype(np.int64)
     diag = float(np.linalg.norm(V.max(0) - V.min(0)))
     out_path = pathlib.Path(out_path)
     out_path.parent.mkdir(parents=True, exist_ok=True)
-    np.savez(out_path, points=np.concatenate(pts), offsets=offsets, rotations=np.stack([o[1] for o in out]),
-             translations=np.stack([o[2] for o in out]), diags=np.full(len(out), diag),
-             instances=np.zeros(len(out), np.int64), scale=np.float64(scale or 2.0 * radius),
-             category=np.str_(category or pathlib.Path(mesh_path).parent.name), frames_per_second=np.float64(len(out) / dt))
+    write_partial_cache(out_path, [o[0] for o in out], [o[1] for o in out], [o[2] for o in out], [diag] * len(out),
+                        [0] * len(out), scale=scale or 2.0 * radius, seconds=dt, key=str(mesh_path),
+                        category=category or pathlib.Path(mesh_path).parent.name)
     log(f"rendered {len(out)} views of {mesh_path} ({len(F)} triangles) in {dt:.1f} s ({len(out) / dt:.1f} frames/s, "
         f"render + crop) → {out_path}")
     return out_path
@@ -342,12 +339,21 @@ def ensure_cache(root, category: str, split: str, cache_dir=None, limit: int | N
     dt = time.perf_counter() - t0
     if not pts:
         raise ConfigError(f"no view of {category}/{split} could be rendered")
+    write_partial_cache(path, pts, Rs, ts, diags, inst, scale=MODELNET_SCALE, category=category, key=key, seconds=dt)
+    log(f"rendered {len(pts)} views of {len(shapes)} {category}/{split} shapes in {dt:.1f} s "
+        f"({len(pts) / dt:.1f} frames/s, render + crop) → {path}")
+    return path
+
+
+def write_partial_cache(path, pts: list, Rs: list, ts: list, diags: list, inst: list, *, scale: float, category: str,
+                        key: str, seconds: float, **extra) -> pathlib.Path:
+    """Write rendered views atomically in the ``RenderedPartial`` layout: concatenated points [ΣP, 3] + offsets, poses
+    (metres), bbox diagonals, instance ids, ``scale`` (metres per model unit), category, settings key, frames/s."""
+    path = pathlib.Path(path)
     offsets = np.concatenate([[0], np.cumsum([len(p) for p in pts])]).astype(np.int64)
     tmp = path.with_suffix(".tmp.npz")
     np.savez(tmp, points=np.concatenate(pts), offsets=offsets, rotations=np.stack(Rs), translations=np.stack(ts),
-             diags=np.array(diags), instances=np.array(inst), scale=np.float64(MODELNET_SCALE),
-             category=np.str_(category), settings=np.str_(key), frames_per_second=np.float64(len(pts) / dt))
+             diags=np.array(diags), instances=np.array(inst), scale=np.float64(scale), category=np.str_(category),
+             settings=np.str_(key), frames_per_second=np.float64(len(pts) / max(seconds, 1e-9)), **extra)
     tmp.replace(path)
-    log(f"rendered {len(pts)} views of {len(shapes)} {category}/{split} shapes in {dt:.1f} s "
-        f"({len(pts) / dt:.1f} frames/s, render + crop) → {path}")
     return path

@@ -117,7 +117,7 @@ def ensure_tabletop_cache(root, category: str, split: str, cache_dir=None, views
     depends only on (seed, split, i). ``limit`` keeps the first K sources (tests, smoke runs).
     """
     from tqdm import tqdm
-    from .render import RenderSettings, default_cache_dir, render_views
+    from .render import RenderSettings, default_cache_dir, render_views, write_partial_cache
     spec = TABLETOP.get(category)
     if spec is None:
         raise ConfigError(f"{category!r} is not a tabletop category ({', '.join(TABLETOP)})")
@@ -148,13 +148,8 @@ def ensure_tabletop_cache(root, category: str, split: str, cache_dir=None, views
     dt = time.perf_counter() - t0
     if not pts:
         raise ConfigError(f"no view of tabletop {category}/{split} could be rendered")
-    offsets = np.concatenate([[0], np.cumsum([len(p) for p in pts])]).astype(np.int64)
-    tmp = path.with_suffix(".tmp.npz")
-    np.savez(tmp, points=np.concatenate(pts), offsets=offsets, rotations=np.stack(Rs), translations=np.stack(ts),
-             diags=np.array(diags), instances=np.array(inst), scale=np.float64(spec.scale), category=np.str_(category),
-             settings=np.str_(key), sources=np.array([s[0] for s in sources]),
-             frames_per_second=np.float64(len(pts) / dt))
-    tmp.replace(path)
+    write_partial_cache(path, pts, Rs, ts, diags, inst, scale=spec.scale, category=category, key=key, seconds=dt,
+                        sources=np.array([s[0] for s in sources]))
     log(f"rendered {len(pts)} views of {len(sources)} tabletop {category}/{split} sources in {dt:.1f} s "
         f"({len(pts) / dt:.1f} frames/s) → {path}")
     return path
