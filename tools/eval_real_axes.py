@@ -249,6 +249,11 @@ def main(argv=None) -> int:
     ap.add_argument("--limit-scenes", type=int, default=None, metavar="K", help="only the first K scenes")
     ap.add_argument("--threads", type=int, default=1, help="onnxruntime intra-op threads")
     ap.add_argument("--min-points", type=int, default=64, help="skip objects with fewer valid points")
+    ap.add_argument("--assign", type=pathlib.Path, default=ROOT / "docs" / "results" / "real" / "mosd_categories.json",
+                    help="JSON {scene: {object id: category}}: adds a 'matched' summary row where each object is "
+                         "judged by the model of its category (see --category-models); '' to skip")
+    ap.add_argument("--category-models", default="cup=cup-tabletop,bowl=bowl-tabletop,can=can-tabletop",
+                    help="category=model label pairs for the matched row (default %(default)s)")
     args = ap.parse_args(argv)
 
     try:
@@ -281,10 +286,39 @@ def main(argv=None) -> int:
               f"[{n[0]:+.3f} {n[1]:+.3f} {n[2]:+.3f}] rms {info['table']['rms_m'] * 1000:.1f} mm; "
               f"{info['seconds']:.2f} s")
 
+    assign = {}
+    if str(args.assign) and args.assign.is_file():
+        assign = {k: v for k, v in json.loads(args.assign.read_text()).items() if not k.startswith("_")}
+    cat_models = dict(kv.split("=", 1) for kv in args.category_models.split(",") if "=" in kv)
+    for r in rows:
+        r["category"] = assign.get(r["scene"], {}).get(str(r["object_id"]))
+        r["matched"] = r["category"] is not None and cat_models.get(r["category"]) == r["model"]
     print()
     print_rows(rows)
     summary = summarize(rows, [m[0] for m in models])
+    matched = [r for r in rows if r["matched"]]
+    if matched:                                                                 # each object by its category's model
+        s = summarize_deviations([r["deviation"] for r in matched])
+        s["errors"] = sum(1 for r in matched if r.get("error"))
+        s["median_angle"] = float(np.median([r["angle"] for r in matched if r["angle"] is not None]))
+        s["per_category"] = {c: summarize_deviations([r["deviation"] for r in matched if r["category"] == c])
+                             for c in sorted({r["category"] for r in matched})}
+        summary = {"matched": s, **summary}
+        base = {}
+        for r in rows:
+            if r["category"] is not None:
+                base.setdefault((r["scene"], r["object_id"]), r)
+        summary["matched"]["baseline_per_category"] = {
+            c: summarize_deviations([r["baseline_deviation"] for r in base.values() if r["category"] == c])
+            for c in sorted({r["category"] for r in base.values()})}
     print_summary(summary)
+    if "matched" in summary:
+        m = summary["matched"]
+        for c, st in m["per_category"].items():
+            b = m["baseline_per_category"].get(c, {})
+            print(f"  matched {c:<5} n={st['n']:>2}  median {_fmt(st['median'])}°  worst {_fmt(st['max'])}°  "
+                  f"≤10° {_fmt(st['within_10'], '.2f')}   (pca baseline: median {_fmt(b.get('median'))}°, worst "
+                  f"{_fmt(b.get('max'))}°)")
 
     args.json.parent.mkdir(parents=True, exist_ok=True)
     doc = {"data": str(args.data), "convention": "camera frame OpenCV (x right, y down, z forward), metres; angles "
