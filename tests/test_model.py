@@ -123,3 +123,24 @@ def test_rejects_bad_shape():
     model = EquiPoseNet("tiny")
     with pytest.raises(ValueError):
         model(torch.zeros(256, 3))
+
+
+def test_canonical_isotropy_flags_a_collapsed_blob():
+    """The trainer's collapse detector: ~1 for a round blob, small for a flat (real) shape."""
+    import numpy as np
+    import torch
+
+    from equipose.train.trainer import canonical_isotropy
+
+    class Fake(torch.nn.Module):
+        def __init__(self, stds):
+            super().__init__()
+            self.stds = torch.tensor(stds)
+
+        def forward(self, x):
+            g = torch.Generator().manual_seed(0)
+            return {"canonical_shape": torch.randn(x.shape[0], 512, 3, generator=g) * self.stds}
+
+    x = np.zeros((4, 64, 3), np.float32)
+    assert canonical_isotropy(Fake([0.2, 0.2, 0.2]), x) > 0.85
+    assert canonical_isotropy(Fake([0.02, 0.2, 0.3]), x) < 0.15

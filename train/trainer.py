@@ -122,7 +122,23 @@ def validate(model, inputs: dict, symmetry: str, device) -> dict:
     err = rotation_errors(Rh, inputs["val"]["rotation"], symmetry)
     return {"val_rot_median_deg": float(np.median(err)), "val_rot_mean_deg": float(err.mean()),
             "val_acc_5deg": float(np.mean(err <= 5)), "calib_inlier_fraction": cal["inlier_fraction"],
-            "calibration": cal}
+            "canon_isotropy": canonical_isotropy(model, inputs["val"]["points"][:8], device), "calibration": cal}
+
+
+@torch.no_grad()
+def canonical_isotropy(model, points: np.ndarray, device="cpu") -> float:
+    """Collapse detector: median over inputs of (smallest / largest principal std) of the predicted canonical shape.
+
+    Near 1 means a round blob that fits every view equally well in every orientation — the pose branch then learns
+    nothing (seen with unidirectional partial-view chamfer on mugs); a category with a real shape stays well below 1.
+    """
+    was = model.training
+    model.eval()
+    c = model(torch.as_tensor(np.asarray(points), dtype=torch.float32, device=device))["canonical_shape"]
+    model.train(was)
+    c = c - c.mean(dim=1, keepdim=True)                                              # [B, M, 3]
+    ev = torch.linalg.eigvalsh(c.transpose(1, 2) @ c / c.shape[1]).clamp_min(0).sqrt()   # [B, 3] ascending stds
+    return float((ev[:, 0] / ev[:, 2].clamp_min(1e-12)).median())
 
 
 def train(cfg: TrainConfig, resume: bool = False, log=print) -> pathlib.Path:
