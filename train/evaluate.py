@@ -182,9 +182,10 @@ def metrics_for_metadata(result: dict) -> dict:
     """The compact ``metrics`` metadata entry of a model: its own row, ICP-60's row, test-set description."""
     rows = {r["method"]: {k: round(float(r[k]), 4) for k in ROW_KEYS[1:]} for r in result["rows"]}
     info = result.get("_info", {})
+    ours = result["rows"][0]["method"]                                  # "equipose" or "equipose+icpK"
     return {"test_set": f"{result['category']}/{result['mode']} test split (equipose.train.evaluate)",
             "n": int(result["n"]), "icp60_samples": int(info.get("icp_samples", result["n"])),
-            **rows.get("equipose", {}), "icp60": rows.get("icp60", {})}
+            "method": ours, **rows[ours], "icp60": rows.get("icp60", {})}
 
 
 def write_json(result: dict, path) -> None:
