@@ -158,3 +158,15 @@ def test_calibrate_model_rotated_inputs_recover_offset():
     canon = np.repeat(ref[None], 12, 0)
     cal = calibrate_model(Fake(), canon, rotations=random_rotations(12, seed=5))
     assert rotation_angle_deg(np.asarray(cal["rotation"]), dR) < 1.0
+
+
+def test_metrics_for_metadata_keeps_our_row_plain_or_refined():
+    from equipose.train.evaluate import metrics_for_metadata
+    from equipose.train.metrics import ROW_KEYS
+    row = {k: 1.0 for k in ROW_KEYS[1:]}
+    for ours in ("equipose", "equipose+icp5"):
+        res = {"category": "cup", "mode": "partial", "n": 100, "_info": {"icp_samples": 40},
+               "rows": [{"method": ours, **row, "rot_median_deg": 2.5}, {"method": "icp60", **row}]}
+        m = metrics_for_metadata(res)
+        assert m["method"] == ours and m["rot_median_deg"] == 2.5 and m["icp60"]["rot_median_deg"] == 1.0
+        assert m["n"] == 100 and m["icp60_samples"] == 40
