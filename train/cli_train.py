@@ -30,6 +30,8 @@ def add_arguments(p) -> None:
     p.add_argument("--threads", type=int, help="torch CPU threads (default 1)")
     p.add_argument("--seed", type=int, help="random seed (default 0)")
     p.add_argument("--device", help="cpu | cuda | cuda:K (default: cuda when present)")
+    p.add_argument("--freeze", help="comma-separated submodules kept fixed (blocks, pose_head, inv_head, decoder), "
+                                    "e.g. 'decoder' when fine-tuning a complete model on partial views")
     p.add_argument("--init", help="warm start from this checkpoint's weights (same preset and mode; fresh optimiser, "
                                   "step 0), e.g. a trained related category")
 

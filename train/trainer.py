@@ -60,6 +60,7 @@ class TrainConfig:
     device: str = ""                      # "" = cuda when present, else cpu
     init: str = ""                        # warm start: weights of this checkpoint (same preset and mode), fresh
                                           # optimiser and step 0 (e.g. a related category); ignored on --resume
+    freeze: str = ""                      # comma-separated submodules kept fixed: blocks, pose_head, inv_head, decoder
 
     @classmethod
     def from_sources(cls, config_file=None, **overrides) -> "TrainConfig":
@@ -159,7 +160,14 @@ def train(cfg: TrainConfig, resume: bool = False, log=print) -> pathlib.Path:
     symmetry = category_symmetry(cfg.category)
     train_ds, val_ds = _datasets(cfg, model.num_points)
     scale = float(getattr(train_ds, "scale", MODELNET_SCALE))
-    opt = torch.optim.Adam(model.parameters(), lr=cfg.lr)
+    frozen = [f for f in (x.strip() for x in cfg.freeze.split(",")) if f]
+    for name in frozen:
+        sub = getattr(model, name, None)
+        if not isinstance(sub, torch.nn.Module) or name.startswith("_"):
+            raise ConfigError(f"--freeze {name!r}: not a submodule (blocks, pose_head, inv_head, decoder)")
+        for prm in sub.parameters():
+            prm.requires_grad_(False)
+    opt = torch.optim.Adam([prm for prm in model.parameters() if prm.requires_grad], lr=cfg.lr)
     step, history, seconds = 0, [], []
     calibration = None
     if resume and ckpt_path.is_file():
