@@ -47,12 +47,12 @@ def test_train_resume_calibrate_eval(tmp_path, data_root, mode):
 
     warm = tmp_path / "warm"                                         # --init: weights only, fresh step counter
     assert main(train[:-10] + ["--val-every", "100", "--out", str(warm), "--cache-dir", str(cache), "--views", "2",
-                               "--steps", "1", "--init", str(out / "latest.pt"), "--freeze", "decoder"]) == 0
+                               "--steps", "1", "--init", str(out / "latest.pt"), "--freeze", "inv_head,decoder"]) == 0
     w = load_checkpoint(warm / "latest.pt")
     assert w["step"] == 1 and w["training"]["config"]["init"] == str(out / "latest.pt")
     src = load_checkpoint(out / "latest.pt")["state_dict"]
-    dec = [k for k in src if k.startswith("decoder.")]
-    assert dec and all(torch.equal(w["state_dict"][k], src[k]) for k in dec)          # frozen
+    dec = [k for k in src if k.startswith(("decoder.", "inv_head."))]
+    assert dec and all(torch.equal(w["state_dict"][k], src[k]) for k in dec)          # frozen (incl. BN stats)
     assert any(not torch.equal(w["state_dict"][k], src[k]) for k in src if k.startswith("pose_head.") and
                src[k].is_floating_point())                                             # trained
 

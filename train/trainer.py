@@ -217,8 +217,10 @@ def train(cfg: TrainConfig, resume: bool = False, log=print) -> pathlib.Path:
 
     bar = tqdm(total=cfg.steps, initial=min(step, cfg.steps), disable=rank != 0, desc=f"train {cfg.category}/{cfg.mode}",
                dynamic_ncols=True)
-    net.train()
     while step < cfg.steps:
+        net.train()
+        for name in frozen:                          # frozen = fixed weights *and* fixed BatchNorm statistics
+            getattr(model, name).eval()
         lr = cfg.lr * cfg.lr_gamma ** (step // per_epoch)
         for g in opt.param_groups:
             g["lr"] = lr
