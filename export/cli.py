@@ -24,9 +24,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--int8", action="store_true", help="also write an int8-quantized copy X.int8.onnx")
     parser.add_argument("--mode", choices=("partial", "complete"), default="partial",
                         help="model variant for --random-init (default: partial)")
-    parser.add_argument("--category", default="unknown", help="category name for --random-init (default: unknown)")
-    parser.add_argument("--scale", type=float, default=2.0,
-                        help="metres per model unit for --random-init (default: 2.0)")
+    parser.add_argument("--category", default=None,
+                        help="category name (--random-init: default unknown; --checkpoint: overrides the checkpoint's)")
+    parser.add_argument("--scale", type=float, default=None,
+                        help="metres per model unit (--random-init: default 2.0; --checkpoint: overrides the "
+                             "checkpoint's, e.g. to deploy a model trained on unit-normalised shapes at a metric size)")
     parser.add_argument("--seed", type=int, default=0, help="random seed for --random-init (default: 0)")
     parser.add_argument("--opset", type=int, default=None, help="ONNX opset (default: the exporter's, 20)")
     parser.add_argument("--no-verify", action="store_true", help="skip the onnxruntime-vs-torch parity self check")
@@ -50,12 +52,13 @@ def run(args) -> int:
     if args.checkpoint is not None:
         if args.random_init:
             raise ConfigError("--random-init goes with --preset, not with --checkpoint")
-        out = export_checkpoint(args.checkpoint, args.output, **opts)
+        out = export_checkpoint(args.checkpoint, args.output, category=args.category, scale=args.scale, **opts)
     else:
         if not args.random_init:
             raise ConfigError("--preset needs --random-init (to export trained weights pass --checkpoint)")
-        out = export_random_model(args.preset, args.output, partial=args.mode == "partial", category=args.category,
-                                  scale=args.scale, seed=args.seed, **opts)
+        out = export_random_model(args.preset, args.output, partial=args.mode == "partial",
+                                  category=args.category or "unknown", scale=2.0 if args.scale is None else args.scale,
+                                  seed=args.seed, **opts)
     print(_summary(out))
     if args.int8:
         print(_summary(quantize_int8(out)))

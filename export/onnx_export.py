@@ -228,9 +228,11 @@ def _summary_of(training: dict) -> dict:
     return keep
 
 
-def export_checkpoint(checkpoint, path, **kwargs) -> pathlib.Path:
+def export_checkpoint(checkpoint, path, *, category: str | None = None, scale: float | None = None,
+                      **kwargs) -> pathlib.Path:
     """Export a training checkpoint (``equipose.train.checkpoint`` format) with its category, scale, symmetry,
-    calibration, training summary and metrics."""
+    calibration, training summary and metrics. ``category`` / ``scale`` (metres per model unit) override the
+    checkpoint's (the training summary then records the original as ``trained_category`` / ``trained_scale``)."""
     from equipose.train.checkpoint import model_from_checkpoint
 
     checkpoint = pathlib.Path(checkpoint)
@@ -244,7 +246,12 @@ def export_checkpoint(checkpoint, path, **kwargs) -> pathlib.Path:
     training = _summary_of(ckpt.get("training") or {})
     training.setdefault("step", int(ckpt.get("step", 0)))
     training.setdefault("mode", "partial" if model.partial else "complete")
-    return export_model(model, path, category=ckpt.get("category", "unknown"), scale=ckpt.get("scale", 1.0),
+    if category is not None and category != ckpt.get("category"):
+        training["trained_category"] = ckpt.get("category")
+    if scale is not None and scale != ckpt.get("scale"):
+        training["trained_scale"] = ckpt.get("scale")
+    return export_model(model, path, category=category or ckpt.get("category", "unknown"),
+                        scale=scale if scale is not None else ckpt.get("scale", 1.0),
                         symmetry=ckpt.get("symmetry", "none"), calibration=ckpt.get("calibration"),
                         random_init=False, training=training, metrics=ckpt.get("metrics") or {}, **kwargs)
 

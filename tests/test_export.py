@@ -320,3 +320,15 @@ def test_refined_calibration_round_trip(tiny_ckpt, tmp_path, rng):
     update_metadata(path, refine_calibration={"k": 2})
     with pytest.raises(MetadataError):
         PoseEstimator(path, threads=1)
+
+
+def test_export_checkpoint_overrides_category_and_scale(tiny_ckpt, tmp_path):
+    """Deploying a network trained on unit-normalised shapes at a metric size: --category / --scale override."""
+    ckpt = tmp_path / "c.pt"
+    save_checkpoint(ckpt, tiny_ckpt[0], category="bottle", scale=2.0, symmetry="continuous:z", step=5)
+    out = tmp_path / "can.onnx"
+    assert cli_main(["export", "--checkpoint", str(ckpt), "-o", str(out), "--category", "can", "--scale", "0.25",
+                     "--no-verify"]) == 0
+    meta = decode_metadata(_session(out).get_modelmeta().custom_metadata_map)
+    assert meta["category"] == "can" and meta["scale"] == 0.25 and meta["symmetry"] == "continuous:z"
+    assert meta["training"]["trained_category"] == "bottle" and meta["training"]["trained_scale"] == 2.0
