@@ -22,8 +22,9 @@ def add_arguments(p) -> None:
                                      "result in its 'refine_calibration' metadata (PoseEstimator(refine='auto') uses it)")
     p.add_argument("--refine", type=int, default=5, help="with --model: hypotheses refined by ICP (default 5)")
     p.add_argument("--refine-iters", dest="refine_iters", type=int, default=10, help="with --model: ICP iterations")
-    p.add_argument("--views", type=int, default=10,
-                   help="with --model and partial mode: rendered views per training instance of the cache to use")
+    p.add_argument("--views", type=int, default=None,
+                   help="partial mode: rendered views per training instance of the cache to use (default: the "
+                        "checkpoint's training setting, else 10)")
     p.add_argument("--category", help="category (default: the checkpoint's)")
     p.add_argument("--mode", choices=["complete", "partial"], help="default: the checkpoint's")
     p.add_argument("--num", type=int, default=1024, help="category-frame training inputs used (default 1024)")
@@ -46,7 +47,7 @@ def _run_model(args) -> int:
     mode = args.mode or ("partial" if est.partial else "complete")
     root = args.data_root or default_data_root()
     ds = make_dataset(root, category, mode, "train", est.num_points, train=True, cache_dir=args.cache_dir,
-                      render_opts={"views": args.views})
+                      render_opts={"views": args.views or 10})
     rng = np.random.default_rng(args.seed)
     idx = rng.choice(len(ds), size=min(args.num, len(ds)), replace=False)
     canon = np.stack([ds.sample(int(i), np.random.default_rng([args.seed, int(i)]))["canonical"] for i in idx])
@@ -70,7 +71,7 @@ def run(args) -> int:
     root = args.data_root or cfg.get("data_root") or default_data_root()
     ds = make_dataset(root, category, mode, "train", model.num_points, train=True, limit=cfg.get("train_limit"),
                       cache_dir=args.cache_dir or cfg.get("cache_dir") or None,
-                      render_opts={"views": cfg.get("views", 10)})
+                      render_opts={"views": args.views or cfg.get("views", 10)})
     rng = np.random.default_rng(args.seed)
     idx = rng.choice(len(ds), size=min(args.num, len(ds)), replace=False)
     canon = np.stack([ds.sample(int(i), np.random.default_rng([args.seed, int(i)]))["canonical"] for i in idx])
