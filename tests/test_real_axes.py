@@ -217,7 +217,7 @@ def test_tool_runs_one_scene_with_the_demo_model(data_root, tmp_path, capsys):
     data = _mosd(data_root).parent
     tool = _tool()
     out = tmp_path / "axes.json"
-    rc = tool.main(["--models", "demo-mug-small", "--data", str(data), "--limit-scenes", "1", "--json", str(out),
+    rc = tool.main(["--models", "cup-tabletop", "--data", str(data), "--limit-scenes", "1", "--json", str(out),
                     "--overlays", str(tmp_path / "ov")])
     assert rc == 0
     doc = json.loads(out.read_text())
@@ -225,10 +225,10 @@ def test_tool_runs_one_scene_with_the_demo_model(data_root, tmp_path, capsys):
     assert scene["scene"] == "learn33" and len(doc["rows"]) == scene["num_objects"] >= 1
     for r in doc["rows"]:
         assert 0 <= r["angle"] <= 90 and r["deviation"] == pytest.approx(min(r["angle"], 90 - r["angle"]))
-        assert r["axis_source"] == "rotation_z" and 0 <= r["baseline_deviation"] <= 45
-    assert doc["summary"]["demo-mug-small"]["n"] == len(doc["rows"])
-    png = tmp_path / "ov" / "learn33_demo-mug-small.png"
+        assert r["axis_source"] == "symmetry_axis" and 0 <= r["baseline_deviation"] <= 45
+    assert doc["summary"]["cup-tabletop"]["n"] == len(doc["rows"])
+    png = tmp_path / "ov" / "learn33_cup-tabletop.png"
     assert png.is_file() and png.stat().st_size < 200_000
-    assert "rotation[:, 2]" in capsys.readouterr().out
+    assert "symmetry_axis" in capsys.readouterr().out
     assert tool.main(["--models", "no-such-model", "--data", str(data), "--json", str(out)]) == 2
     assert "no-such-model" in capsys.readouterr().err

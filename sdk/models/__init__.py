@@ -1,8 +1,8 @@
-"""Models shipped with the package (ONNX files with equipose metadata).
+"""Models shipped with the package (ONNX files with equipose metadata; ``equipose models`` lists them).
 
-``demo_mug_small.onnx``: the ``small`` preset with **random weights** (category "mug", partial-depth mode,
-scale 0.25 m per model unit), a placeholder that exercises the whole pipeline until trained models are published.
-Its poses are meaningless; its metadata says ``random_init = true``.
+Each file's metadata carries its category, preset, scale, calibration and its own test metrics (``metrics``, written
+by ``equipose eval --model M --store-metrics``); ``X.int8.onnx`` is the dynamic-int8 copy of ``X.onnx``.
+``cup-tabletop.onnx`` is the demo model. Trained on ModelNet40 (academic use only) and OCRTOC/YCB data: research use.
 """
 from __future__ import annotations
 
@@ -12,11 +12,11 @@ __all__ = ["MODELS_DIR", "DEMO_MODEL", "demo_model_path", "list_models", "model_
            "model_cards"]
 
 MODELS_DIR = pathlib.Path(__file__).resolve().parent
-DEMO_MODEL = "demo_mug_small.onnx"
+DEMO_MODEL = "cup-tabletop.onnx"
 
 
 def demo_model_path() -> pathlib.Path:
-    """Path of the bundled demo model (random weights until trained models exist)."""
+    """Path of the bundled demo model (the trained tabletop cup / mug model)."""
     return MODELS_DIR / DEMO_MODEL
 
 
@@ -30,7 +30,7 @@ def _key(name: str) -> str:
 
 
 def model_names() -> list:
-    """Names of the shipped models (file stems with '-' for '_'), e.g. ``demo-mug-small``."""
+    """Names of the shipped models (file stems with '-' for '_'), e.g. ``cup-tabletop``, ``cup-tabletop.int8``."""
     return [p.stem.replace("_", "-") for p in list_models()]
 
 

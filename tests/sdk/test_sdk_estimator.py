@@ -231,9 +231,11 @@ def test_shipped_model_by_name():
     from equipose import PoseEstimator
     from equipose.errors import ModelFormatError
     from equipose.models import demo_model_path, model_names, resolve_model
-    assert "demo-mug-small" in model_names()
-    assert resolve_model("demo-mug-small") == demo_model_path() == resolve_model("DEMO_mug_small.onnx")
-    est = PoseEstimator("demo-mug-small", threads=1)
-    assert est.path == demo_model_path() and est.category == "mug"
+    assert {"cup-tabletop", "cup-tabletop.int8", "airplane-complete"} <= set(model_names())
+    assert resolve_model("cup-tabletop") == demo_model_path() == resolve_model("CUP_tabletop.onnx")
+    est = PoseEstimator("cup-tabletop", threads=1)
+    assert est.path == demo_model_path() and est.category == "cup" and not est.random_init
+    assert est.metadata["metrics"]["n"] > 0 and "icp60" in est.metadata["metrics"]          # its own test metrics
+    assert PoseEstimator("cup-tabletop.int8", threads=1).metadata["precision"] == "int8"
     with pytest.raises(ModelFormatError, match="shipped"):
         PoseEstimator("no-such-model")
