@@ -132,7 +132,7 @@ def _torch_forward(est, checkpoint: str | None):
 
 
 def run_backend(backend: str, model_path: str, threads: int = 2, objects: int = 1, runs: int = 100,
-                warmup: int = 5, checkpoint: str | None = None) -> dict:
+                warmup: int = 5, checkpoint: str | None = None, refine="auto") -> dict:
     """Measure one backend in this process. Returns a row dict (end-to-end and per-stage percentiles, fps, rss)."""
     from equipose import PoseEstimator
     from equipose import crop as C
@@ -140,7 +140,7 @@ def run_backend(backend: str, model_path: str, threads: int = 2, objects: int = 
     if backend not in BACKENDS:
         raise ValueError(f"backend must be one of {BACKENDS}, got {backend!r}")
     path = _int8_path(model_path) if backend == "onnxruntime-int8" else model_path
-    est = PoseEstimator(path, threads=threads)
+    est = PoseEstimator(path, threads=threads, refine=refine)
     frame, box = _sample_frame()
     boxes = [box] * objects
     note, parity = "", None
@@ -183,7 +183,7 @@ def run_backend(backend: str, model_path: str, threads: int = 2, objects: int = 
     row["peak_rss_mb"] = _peak_rss_mb()
     row["model_mb"] = os.path.getsize(path) / 2 ** 20 if backend.startswith("onnx") else None
     row["stages"] = {k: percentiles([s[k] for s in samples]) for k in STAGES}
-    row["runs"], row["threads"], row["objects"] = runs, threads, objects
+    row["runs"], row["threads"], row["objects"], row["refine"] = runs, threads, objects, est.refine
     if note:
         row["note"] = note
     if parity is not None:
@@ -194,9 +194,9 @@ def run_backend(backend: str, model_path: str, threads: int = 2, objects: int = 
 # ----------------------------------------------------------------------------------------------------------------------
 # Orchestration: one subprocess per backend
 
-def _run_isolated(backend, model_path, threads, objects, runs, warmup, checkpoint) -> dict:
+def _run_isolated(backend, model_path, threads, objects, runs, warmup, checkpoint, refine="auto") -> dict:
     cmd = [sys.executable, "-m", "equipose.bench", backend, model_path, str(threads), str(objects), str(runs),
-           str(warmup), checkpoint or ""]
+           str(warmup), checkpoint or "", str(refine)]
     env = dict(os.environ, OMP_NUM_THREADS=str(threads), DEPTHAI_LEVEL="error")
     p = subprocess.run(cmd, capture_output=True, text=True, env=env)
     if p.returncode != 0:
@@ -206,7 +206,7 @@ def _run_isolated(backend, model_path, threads, objects, runs, warmup, checkpoin
 
 
 def run_benchmark(model_path: str, backends=BACKENDS, threads: int = 2, objects: int = 1, runs: int = 100,
-                  warmup: int = 5, checkpoint: str | None = None, isolate: bool = True) -> dict:
+                  warmup: int = 5, checkpoint: str | None = None, isolate: bool = True, refine="auto") -> dict:
     """All requested backends on the same frame; returns ``{"model", "threads", "points", "objects", "rows", ...}``."""
     from equipose import PoseEstimator
     from equipose.presets import ModelConfig, total_macs
@@ -218,11 +218,12 @@ def run_benchmark(model_path: str, backends=BACKENDS, threads: int = 2, objects:
     rows = []
     for b in backends:
         row = (_run_isolated if isolate else lambda *a: run_backend(*a))(b, str(model_path), threads, objects, runs,
-                                                                         warmup, checkpoint)
+                                                                         warmup, checkpoint, refine)
         rows.append(row)
         print(f"  measured {b}: " + (f"p50 {row['p50_ms']:.1f} ms" if "p50_ms" in row else row["error"]),
               file=sys.stderr, flush=True)
     return {"model": str(model_path), "preset": cfg.name, "threads": threads, "points": est.num_points,
+            "refine": rows[0].get("refine") if rows else None,
             "objects": objects, "macs": macs, "matmul_peak_gmacs": peak, "bound_ms": macs * objects / peak / 1e6,
             "rows": rows}
 
@@ -232,7 +233,8 @@ def format_table(result: dict) -> str:
     rows = result["rows"]
     ref = next((r for r in rows if r.get("backend") == "onnxruntime-fp32" and "p50_ms" in r), None)
     lines = [f"model {result['model']} (preset {result['preset']}, N={result['points']}, "
-             f"{result['macs'] / 1e9:.3f} GMAC/object), {result['threads']} thread(s), {result['objects']} object(s)/frame",
+             f"{result['macs'] / 1e9:.3f} GMAC/object), {result['threads']} thread(s), {result['objects']} object(s)/frame"
+             f", ICP re-scoring of {result.get('refine') or 0} hypotheses (selection stage)",
              f"MatMul peak {result['matmul_peak_gmacs']:.1f} GMAC/s → bound {result['bound_ms']:.2f} ms/frame",
              f"{'backend':<18} {'p50 ms':>8} {'p95 ms':>8} {'max ms':>8} {'FPS':>8} {'RSS MB':>8} {'size MB':>8} "
              f"{'× fp32':>7}  {'crop':>6} {'fps':>6} {'infer':>7} {'select':>6}"]
@@ -251,8 +253,9 @@ def format_table(result: dict) -> str:
 
 
 def _worker_main(argv):
-    backend, model, threads, objects, runs, warmup, ckpt = argv
-    row = run_backend(backend, model, int(threads), int(objects), int(runs), int(warmup), ckpt or None)
+    backend, model, threads, objects, runs, warmup, ckpt, refine = argv
+    row = run_backend(backend, model, int(threads), int(objects), int(runs), int(warmup), ckpt or None,
+                      "auto" if refine == "auto" else int(refine))
     sys.stdout.write(json.dumps(row) + "\n")
 
 

@@ -35,18 +35,20 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--precision", default="all", choices=["fp32", "int8", "all"])
     args = ap.parse_args(argv)
-    print("| model | category / mode | precision | MB | train steps | ours: mean / median / 5° | flip | "
+    print("| model | category | network | test set | precision | MB | train steps | ours: mean / median / 5° | flip | "
           "ICP-60 (same run) | paper ours | paper ICP |")
-    print("|---|---|---|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
     for c in model_cards():
         if c["random_init"] or (args.precision != "all" and c["precision"] != args.precision):
             continue
         m = c["metrics"]
-        paper = PAPER.get((c["category"], c["mode"]), {})
+        test = m.get("test_set", "–").split(" ")[0]                          # e.g. "cup/partial"
+        test_mode = test.split("/")[-1] if "/" in test else c["mode"]
+        paper = PAPER.get((c["category"], test_mode), {})
         p_ours = " / ".join(f"{v:g}" for v in paper["ours"]) if paper else "–"
         p_icp = " / ".join(f"{v:g}" for v in paper["icp"]) if paper else "–"
         flip = f"{m['flip_rate']:.2f}" if "flip_rate" in m else "–"
-        print(f"| `{c['name']}` | {c['category']} / {c['mode']} | {c['precision']} | {c['size_mb']:.2f} | "
+        print(f"| `{c['name']}` | {c['category']} | {c['mode']} | {test_mode} | {c['precision']} | {c['size_mb']:.2f} | "
               f"{c['training'].get('step', '–')} | {_triple(m)} | {flip} | {_triple(m.get('icp60', {}))} | "
               f"{p_ours} | {p_icp} |")
     return 0

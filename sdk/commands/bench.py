@@ -26,6 +26,8 @@ def add_arguments(p):
     p.add_argument("--sweep", action="store_true",
                    help="latency vs N (256, 512, 1024, 2048), threads (1, 2) and objects per frame (1..8), fp32 only")
     p.add_argument("--json", dest="json_path", default=None, help="write the results as JSON to this file")
+    p.add_argument("--refine", default="auto",
+                   help="ICP re-scoring of K hypotheses in every backend (default 'auto': the model file's setting)")
 
 
 def _resolve_model(name):
@@ -76,9 +78,17 @@ def run(args) -> int:
         model = _variant_at(model, args.points, tmp)
     if args.sweep:
         return _sweep(model, args, tmp)
+    refine = args.refine
+    if refine != "auto":
+        try:
+            refine = int(refine)
+        except ValueError:
+            raise ConfigError(f"--refine takes 'auto' or an integer ≥ 0, got {args.refine!r}") from None
+        if refine < 0:
+            raise ConfigError(f"--refine takes 'auto' or an integer ≥ 0, got {refine}")
     backends = ["onnxruntime-fp32"] + [COMPARE[c] for c in extra]
     result = run_benchmark(model, backends, threads=args.threads, objects=args.batch, runs=args.runs,
-                           warmup=args.warmup, checkpoint=args.checkpoint)
+                           warmup=args.warmup, checkpoint=args.checkpoint, refine=refine)
     print(format_table(result))
     if args.json_path:
         pathlib.Path(args.json_path).write_text(json.dumps(result, indent=1))
