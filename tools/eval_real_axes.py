@@ -286,13 +286,20 @@ def main(argv=None) -> int:
               f"[{n[0]:+.3f} {n[1]:+.3f} {n[2]:+.3f}] rms {info['table']['rms_m'] * 1000:.1f} mm; "
               f"{info['seconds']:.2f} s")
 
-    assign = {}
+    assign, lying = {}, {}
     if str(args.assign) and args.assign.is_file():
-        assign = {k: v for k, v in json.loads(args.assign.read_text()).items() if not k.startswith("_")}
+        doc_a = json.loads(args.assign.read_text())
+        assign = {k: v for k, v in doc_a.items() if not k.startswith("_")}
+        lying = doc_a.get("_lying", {})
     cat_models = dict(kv.split("=", 1) for kv in args.category_models.split(",") if "=" in kv)
     for r in rows:
         r["category"] = assign.get(r["scene"], {}).get(str(r["object_id"]))
         r["matched"] = r["category"] is not None and cat_models.get(r["category"]) == r["model"]
+        if r["category"] is not None and r.get("angle") is not None:            # error against the known rest pose
+            down = str(r["object_id"]) in lying.get(r["scene"], [])
+            r["rest_pose"] = "lying" if down else "upright"
+            r["rest_pose_error"] = 90.0 - r["angle"] if down else r["angle"]
+            r["baseline_rest_pose_error"] = 90.0 - r["baseline_angle"] if down else r["baseline_angle"]
     print()
     print_rows(rows)
     summary = summarize(rows, [m[0] for m in models])
@@ -303,6 +310,8 @@ def main(argv=None) -> int:
         s["median_angle"] = float(np.median([r["angle"] for r in matched if r["angle"] is not None]))
         s["per_category"] = {c: summarize_deviations([r["deviation"] for r in matched if r["category"] == c])
                              for c in sorted({r["category"] for r in matched})}
+        s["rest_pose_error"] = summarize_deviations([r.get("rest_pose_error") for r in matched])
+        s["baseline_rest_pose_error"] = summarize_deviations([r.get("baseline_rest_pose_error") for r in matched])
         summary = {"matched": s, **summary}
         base = {}
         for r in rows:
@@ -314,6 +323,10 @@ def main(argv=None) -> int:
     print_summary(summary)
     if "matched" in summary:
         m = summary["matched"]
+        e, b = m["rest_pose_error"], m["baseline_rest_pose_error"]
+        print(f"  matched, error against the known rest pose (upright/lying, not folded): median {_fmt(e['median'])}°, "
+              f"worst {_fmt(e['max'])}°, ≤10° {_fmt(e['within_10'], '.2f')}, ≤20° {_fmt(e['within_20'], '.2f')}   "
+              f"(pca baseline: median {_fmt(b['median'])}°, worst {_fmt(b['max'])}°)")
         for c, st in m["per_category"].items():
             b = m["baseline_per_category"].get(c, {})
             print(f"  matched {c:<5} n={st['n']:>2}  median {_fmt(st['median'])}°  worst {_fmt(st['max'])}°  "
