@@ -36,7 +36,8 @@ from equipose.geometry import random_rotations
 
 __all__ = ["camera_matrix", "rasterize_mesh", "splat_surfels", "surfels_from_points", "depth_to_uint16",
            "RenderSettings", "sample_pose", "render_frame", "render_views", "ensure_cache", "CATEGORY_DISTANCE",
-           "default_cache_dir", "render_mesh_cache", "write_partial_cache"]
+           "default_cache_dir", "render_mesh_cache", "write_partial_cache",
+           "keyed_cache_path"]
 
 # reference camera distances (spec §7), object normalised to max radius 1
 CATEGORY_DISTANCE = {"airplane": 1.8, "car": 2.0, "bottle": 2.0, "bowl": 2.3, "sofa": 2.3, "chair": 2.3,
@@ -319,14 +320,11 @@ def ensure_cache(root, category: str, split: str, cache_dir=None, limit: int | N
         return ensure_tabletop_cache(root, category, split, cache_dir=cache_dir, views=views, seed=seed,
                                      progress=progress, log=log, limit=limit)
     settings = settings or RenderSettings(distance=CATEGORY_DISTANCE.get(category, 2.0))
-    key = json.dumps({"category": category, "split": split, "limit": limit, "views": views, "source": source,
-                      "seed": seed, "settings": asdict(settings), "v": 1}, sort_keys=True)
-    digest = hashlib.sha1(key.encode()).hexdigest()[:10]
-    cache_dir = pathlib.Path(cache_dir) if cache_dir else default_cache_dir()
-    path = cache_dir / f"partial_{category}_{split}_{source}_v{views}_{digest}.npz"
+    key, path = keyed_cache_path(cache_dir, f"partial_{category}_{split}_{source}_v{views}",
+                                 {"category": category, "split": split, "limit": limit, "views": views,
+                                  "source": source, "seed": seed, "settings": asdict(settings), "v": 1})
     if path.is_file():
         return path
-    cache_dir.mkdir(parents=True, exist_ok=True)
     shapes = _modelnet_shapes(root, category, split, source, limit)
     pts, Rs, ts, diags, inst = [], [], [], [], []
     t0 = time.perf_counter()
@@ -343,6 +341,15 @@ def ensure_cache(root, category: str, split: str, cache_dir=None, limit: int | N
     log(f"rendered {len(pts)} views of {len(shapes)} {category}/{split} shapes in {dt:.1f} s "
         f"({len(pts) / dt:.1f} frames/s, render + crop) → {path}")
     return path
+
+
+def keyed_cache_path(cache_dir, stem: str, settings: dict) -> tuple:
+    """(settings JSON key, ``<cache_dir>/<stem>_<sha1(key)[:10]>.npz``); creates the folder. Every setting is in the
+    key, so a changed setting names a new cache."""
+    key = json.dumps(settings, sort_keys=True, default=str)
+    cache_dir = pathlib.Path(cache_dir) if cache_dir else default_cache_dir()
+    cache_dir.mkdir(parents=True, exist_ok=True)
+    return key, cache_dir / f"{stem}_{hashlib.sha1(key.encode()).hexdigest()[:10]}.npz"
 
 
 def write_partial_cache(path, pts: list, Rs: list, ts: list, diags: list, inst: list, *, scale: float, category: str,

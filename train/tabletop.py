@@ -13,8 +13,6 @@ Convention:
 """
 from __future__ import annotations
 
-import hashlib
-import json
 import pathlib
 import time
 from dataclasses import asdict, dataclass
@@ -117,19 +115,16 @@ def ensure_tabletop_cache(root, category: str, split: str, cache_dir=None, views
     depends only on (seed, split, i). ``limit`` keeps the first K sources (tests, smoke runs).
     """
     from tqdm import tqdm
-    from .render import RenderSettings, default_cache_dir, render_views, write_partial_cache
+    from .render import RenderSettings, keyed_cache_path, render_views, write_partial_cache
     spec = TABLETOP.get(category)
     if spec is None:
         raise ConfigError(f"{category!r} is not a tabletop category ({', '.join(TABLETOP)})")
-    key = json.dumps({"tabletop": category, "split": split, "views": views, "seed": seed, "distance_m": list(distance_m),
-                      "lateral": lateral, "limit": limit, "spec": asdict(spec), "settings": asdict(RenderSettings()),
-                      "v": 1}, sort_keys=True, default=str)
-    digest = hashlib.sha1(key.encode()).hexdigest()[:10]
-    cache_dir = pathlib.Path(cache_dir) if cache_dir else default_cache_dir()
-    path = cache_dir / f"tabletop_{category}_{split}_v{views}_{digest}.npz"
+    key, path = keyed_cache_path(cache_dir, f"tabletop_{category}_{split}_v{views}",
+                                 {"tabletop": category, "split": split, "views": views, "seed": seed,
+                                  "distance_m": list(distance_m), "lateral": lateral, "limit": limit,
+                                  "spec": asdict(spec), "settings": asdict(RenderSettings()), "v": 1})
     if path.is_file():
         return path
-    cache_dir.mkdir(parents=True, exist_ok=True)
     sources = tabletop_sources(root, category, split, seed)[:limit]
     pts, Rs, ts, diags, inst = [], [], [], [], []
     t0 = time.perf_counter()
