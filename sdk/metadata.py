@@ -17,7 +17,7 @@ Keys (all values are strings):
     calibration_rotation    JSON 3×3: δR, learned frame → category frame (R_cat = R_pred · δRᵀ)
     calibration_translation JSON 3: δt in model units (t_cat = t_pred − R_cat · δt)
     anchors                 JSON 60×4: the group rotations as (w, x, y, z), in hypothesis order
-    random_init             "true" for random-weight models (tests, benchmarks, demo placeholder)
+    random_init             "true" for random-weight models (tests, benchmarks)
     training                JSON: training data summary (dataset, mode, steps, ...)
     metrics                 JSON: metrics on the test split ({} if none)
 Optional keys (absent in older files): ``precision`` "fp32" | "int8" (weights of the graph's MatMul/Gemm).

@@ -37,7 +37,7 @@ def run(args) -> int:
     print(f"equipose demo: sample 'table_mug' (PCL tutorial scene, BSD-3), {frame.depth.shape[1]}×{frame.depth.shape[0]} "
           f"depth; model {model.name} ({est.category}, {est.num_points} points, scale {est.scale} m/unit)")
     if est.random_init:
-        print("NOTE: this model has RANDOM WEIGHTS (a placeholder until trained models exist). The pipeline is real; "
+        print("NOTE: this model has RANDOM WEIGHTS (an export for tests or benchmarks). The pipeline is real; "
               "the rotations it prints are not.")
     masks = [] if args.boxes else auto_masks(frame.depth, frame.K, image_size=frame.image_size)
     how = "auto crop (table plane + clusters)"

@@ -65,7 +65,7 @@ def run(args) -> int:
         model = demo_model_path()
     est = PoseEstimator(model, threads=args.threads)
     if est.random_init:
-        print(f"note: {pathlib.Path(model).name} has random weights (placeholder until trained models exist): "
+        print(f"note: {pathlib.Path(model).name} has random weights (an export for tests or benchmarks): "
               "its poses are meaningless", file=sys.stderr)
     boxes = [parse_box(b) for b in args.box] if args.box else None
     masks = [load_mask(m) for m in args.mask] if args.mask else None
