@@ -102,51 +102,26 @@ def _check_points(points, min_points: int, what: str) -> np.ndarray:
     return p
 
 
-def _lstsq_plane(p: np.ndarray) -> tuple:
-    """Least-squares plane through [P, 3] points → (unit normal [3], centroid [3]) via SVD of the centred points."""
-    c = p.mean(axis=0)
-    _, _, Vt = np.linalg.svd(p - c, full_matrices=False)
-    return Vt[2], c
+def fit_plane(points, *, threshold: float = 0.01, iterations: int = 200, seed: int = 0) -> Plane:
+    """Robust plane: the SDK's ``equipose.crop.fit_plane_ransac`` (RANSAC on 3-point samples, then least squares on
+    the inliers, refined twice), wrapped with checks and the fit's centroid, inliers and rms.
 
-
-def fit_plane(points, *, threshold: float = 0.01, iterations: int = 200, max_sample: int = 20000,
-              seed: int = 0) -> Plane:
-    """Robust plane: RANSAC on 3-point samples, then least squares (SVD) on the inliers, refined twice.
-
-    Convention: ``points`` [P, 3] metres (finite, P ≥ 3); ``threshold`` metres (point-to-plane inlier distance);
-    RANSAC scores at most ``max_sample`` random points, the refinement uses all. Deterministic for a given ``seed``.
-    The normal's sign is arbitrary here (see ``orient_towards_camera``). Raises ``InvalidPointsError``,
-    ``TooFewPointsError``.
+    Convention: ``points`` [P, 3] metres (finite, P ≥ 3); ``threshold`` metres (point-to-plane inlier distance).
+    Deterministic for a given ``seed``. The normal's sign is arbitrary here (see ``orient_towards_camera``).
+    Raises ``InvalidPointsError`` (bad or collinear points), ``TooFewPointsError``.
     """
+    from .crop import fit_plane_ransac
     p = _check_points(points, 3, "plane points")
-    rng = np.random.default_rng(seed)
-    sample = p if len(p) <= max_sample else p[rng.choice(len(p), max_sample, replace=False)]   # [S, 3]
-    best_n, best_d, best_count = None, 0.0, -1
-    for _ in range(int(iterations)):
-        a, b, c = sample[rng.choice(len(sample), 3, replace=False)]
-        n = np.cross(b - a, c - a)
-        norm = np.linalg.norm(n)
-        if norm < 1e-12:                                                        # degenerate (collinear) sample
-            continue
-        n /= norm
-        count = int(np.count_nonzero(np.abs(sample @ n - n @ a) < threshold))
-        if count > best_count:
-            best_n, best_d, best_count = n, float(n @ a), count
-    if best_n is None:
-        raise InvalidPointsError("plane points are all collinear; no plane can be fitted")
-    n, d = best_n, best_d
-    for _ in range(2):                                                          # LS on inliers, re-select, repeat
-        inl = np.abs(p @ n - d) < threshold
-        if inl.sum() < 3:
-            break
-        n, c = _lstsq_plane(p[inl])
-        d = float(n @ c)
-    inl = np.abs(p @ n - d) < threshold
+    try:
+        n, d_ransac, inl = fit_plane_ransac(p, threshold=threshold, iterations=int(iterations), seed=seed)
+    except TooFewPointsError:                                                   # P ≥ 3 checked: only collinear
+        raise InvalidPointsError("plane points are all collinear; no plane can be fitted") from None
+    d = -d_ransac                                                               # n · x + d_ransac = 0 → n · x = d
     if inl.sum() < 3:
         raise TooFewPointsError(f"plane fit kept {int(inl.sum())} inliers within {threshold} m")
     c = p[inl].mean(axis=0)
     rms = float(np.sqrt(np.mean((p[inl] @ n - d) ** 2)))
-    return Plane(normal=n, offset=d, centroid=c, inliers=inl, rms=rms)
+    return Plane(normal=np.asarray(n, np.float64), offset=float(d), centroid=c, inliers=inl, rms=rms)
 
 
 def orient_towards_camera(normal, point) -> np.ndarray:
