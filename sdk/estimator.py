@@ -9,14 +9,13 @@ Convention:
 """
 from __future__ import annotations
 
-import json
 import pathlib
 import time
 
 import numpy as np
 
 from . import crop as _crop
-from .errors import ConfigError, EquiposeError, InvalidPointsError, MetadataError, ModelFormatError, RegionError
+from .errors import ConfigError, EquiposeError, InvalidPointsError, ModelFormatError, RegionError
 from .hypotheses import apply_calibration, canonicalise_rotation, parse_symmetry, select_hypothesis
 from .metadata import decode_metadata
 from .refine import refine_hypotheses
@@ -94,27 +93,18 @@ class PoseEstimator:
         self.random_init = bool(self.metadata["random_init"])
         self.calibration_rotation = np.asarray(self.metadata["calibration_rotation"], np.float64)     # [3, 3]
         self.calibration_translation = np.asarray(self.metadata["calibration_translation"], np.float64)  # [3]
-        rcal = self.metadata.get("refine_calibration")                         # optional key, JSON
-        try:
-            rcal = json.loads(rcal) if isinstance(rcal, str) else rcal
-            if rcal:
-                rcal = {"k": int(rcal["k"]), "iters": int(rcal["iters"]), "rotation": rcal["rotation"],
-                        "translation": rcal["translation"]}
-        except (ValueError, KeyError, TypeError) as e:
-            raise MetadataError(f"{path.name}: malformed refine_calibration metadata ({e}); re-run 'equipose "
-                                "calibrate --model'") from None
+        rcal = self.metadata["refine_calibration"]                              # None, or parsed and checked
         if refine == "auto":
-            refine = int(rcal["k"]) if rcal else 0
+            refine = rcal["k"] if rcal else 0
         if refine_iters is None:
-            refine_iters = int(rcal["iters"]) if rcal else 10
+            refine_iters = rcal["iters"] if rcal else 10
         if isinstance(refine, bool) or not isinstance(refine, int) or refine < 0 or not isinstance(refine_iters, int) \
                 or refine_iters < 1:
             raise ConfigError(f"refine must be 'auto' or an int ≥ 0 and refine_iters an int ≥ 1, got {refine!r}, "
                               f"{refine_iters!r}")
         self.refine, self.refine_iters = refine, refine_iters
         if refine and rcal:                                                     # calibrated for refined poses
-            self.calibration_rotation = np.asarray(rcal["rotation"], np.float64).reshape(3, 3)
-            self.calibration_translation = np.asarray(rcal["translation"], np.float64).reshape(3)
+            self.calibration_rotation, self.calibration_translation = rcal["rotation"], rcal["translation"]
         self.crop_options = dict(crop_options or {})
         # the model reads N FPS-ordered points: a crop of 4·N (≥ 1024) keeps FPS coverage and bounds crop/FPS cost
         self.crop_options.setdefault("max_points", max(1024, 4 * self.num_points))

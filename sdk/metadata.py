@@ -20,7 +20,9 @@ Keys (all values are strings):
     random_init             "true" for random-weight models (tests, benchmarks)
     training                JSON: training data summary (dataset, mode, steps, ...)
     metrics                 JSON: metrics on the test split ({} if none)
-Optional keys (absent in older files): ``precision`` "fp32" | "int8" (weights of the graph's MatMul/Gemm).
+Optional keys (absent in older files): ``precision`` "fp32" | "int8" (weights of the graph's MatMul/Gemm);
+``refine_calibration`` JSON {k, iters, rotation 3×3, translation 3, ...}: the calibration for the SDK's ICP
+re-scoring of the k best hypotheses (``equipose calibrate --model M --refine K``).
 """
 from __future__ import annotations
 
@@ -79,7 +81,8 @@ def decode_metadata(props: dict, source: str = "model") -> dict:
     """Validate and parse a ``{key: str}`` map into python values. Raises ``ModelVersionError`` / ``MetadataError``.
 
     Returns a dict with the same keys: ints for counts, float scale, bools, numpy arrays for the calibration
-    (``calibration_rotation`` [3, 3], ``calibration_translation`` [3]) and ``anchors`` [60, 4], dicts for JSON.
+    (``calibration_rotation`` [3, 3], ``calibration_translation`` [3]) and ``anchors`` [60, 4], dicts for JSON,
+    ``refine_calibration`` as a dict with arrays (None when absent).
     """
     if "equipose_format" not in props:
         raise MetadataError(f"{source} is an ONNX model but not an equipose model (no 'equipose_format' metadata); "
@@ -112,6 +115,15 @@ def decode_metadata(props: dict, source: str = "model") -> dict:
         out["anchors"] = np.asarray(json.loads(props["anchors"]), dtype=np.float64).reshape(icosahedral.NUM_ROTATIONS, 4)
     except (ValueError, TypeError, json.JSONDecodeError) as e:
         raise MetadataError(f"{source}: malformed equipose metadata ({e}); re-export the model") from None
+    try:
+        rc = json.loads(props["refine_calibration"]) if props.get("refine_calibration") else None
+        out["refine_calibration"] = None if not rc else {
+            "k": int(rc["k"]), "iters": int(rc["iters"]),
+            "rotation": np.asarray(rc["rotation"], dtype=np.float64).reshape(3, 3),
+            "translation": np.asarray(rc["translation"], dtype=np.float64).reshape(3)}
+    except (ValueError, KeyError, TypeError) as e:
+        raise MetadataError(f"{source}: malformed refine_calibration metadata ({e}); re-run 'equipose calibrate "
+                            "--model'") from None
     _check_symmetry(out["symmetry"])
     if not out["scale"] > 0:
         raise MetadataError(f"{source}: scale must be positive, got {out['scale']}")

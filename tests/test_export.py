@@ -317,7 +317,13 @@ def test_refined_calibration_round_trip(tiny_ckpt, tmp_path, rng):
     np.testing.assert_allclose(est.calibration_rotation, R)
     plain = PoseEstimator(path, threads=1, refine=0)
     np.testing.assert_allclose(plain.calibration_rotation, CALIBRATION["rotation"])   # the network's own
-    update_metadata(path, refine_calibration={"k": 2})
+    before = path.read_bytes()
+    with pytest.raises(MetadataError):                                       # validated before writing …
+        update_metadata(path, refine_calibration={"k": 2})
+    assert path.read_bytes() == before
+    proto = onnx.load(str(path))                                             # … and when a file carries it anyway
+    next(p for p in proto.metadata_props if p.key == "refine_calibration").value = '{"k": 2}'
+    onnx.save_model(proto, str(path))
     with pytest.raises(MetadataError):
         PoseEstimator(path, threads=1)
 
