@@ -166,27 +166,20 @@ def calibrate_onnx_refined(model_path, canonical_points: np.ndarray, k: int = 5,
     """Calibration of an exported model *as the SDK runs it with ICP re-scoring* (``PoseEstimator(refine=k)``).
 
     Convention: ``canonical_points`` [K, N', 3] model units, category frame (identity pose, as ``calibrate_model``).
-    Each input goes through onnxruntime, ``equipose.refine.refine_hypotheses`` (k best, ``iters`` ICP iterations
-    against the predicted canonical shape) and argmin selection in the learned frame; the selected raw poses are the
-    offsets (δR, δt in model units about the input origin), reduced with ``calibrate_offsets``. Returns that dict
-    plus ``k`` and ``iters`` (the ``refine_calibration`` metadata entry). torch-free.
+    Each input (as metres about the origin) goes through ``PoseEstimator.predict_points`` with ``refine=k`` and an
+    identity calibration, so the selected poses are the raw learned-frame offsets (δR, δt in model units about the
+    input origin) of exactly the SDK's path; they are reduced with ``calibrate_offsets``. Returns that dict plus
+    ``k`` and ``iters`` (the ``refine_calibration`` metadata entry). torch-free.
     """
     from equipose import PoseEstimator
-    from equipose.crop import prepare_points
-    from equipose.refine import refine_hypotheses
 
-    est = PoseEstimator(model_path, threads=1, refine=0)
     pts = np.asarray(canonical_points, np.float64)
     if pts.ndim != 3 or pts.shape[-1] != 3:
         raise ConfigError(f"canonical_points must be [K, N, 3], got {pts.shape}")
-    dR, dt = [], []
-    for p in pts:
-        prep = prepare_points(p * est.scale, est.num_points, est.scale)            # metres → the SDK's model input
-        out = est.run_model(prep.model_points[None])
-        R, t, s = refine_hypotheses(prep.model_points, out["canonical_shape"][0].astype(np.float64),
-                                    out["hypothesis_rotations"][0], out["hypothesis_translations"][0],
-                                    out["hypothesis_scores"][0], k=k, iters=iters, bidirectional=not est.partial)
-        j = int(np.argmin(s))
-        dR.append(R[j]); dt.append(t[j] + prep.centre_m / est.scale)                # about the input origin
-    cal = calibrate_offsets(np.stack(dR), np.stack(dt), symmetry=est.symmetry, unsigned_axis=unsigned_axis, seed=seed)
+    est = PoseEstimator(model_path, threads=1, refine=int(k), refine_iters=int(iters))
+    est.calibration_rotation, est.calibration_translation = np.eye(3), np.zeros(3)     # raw, learned-frame poses
+    res = est.predict_points_batch([p * est.scale for p in pts])                      # metres, object at the origin
+    dR = np.stack([r.rotation for r in res])                                          # [K, 3, 3]
+    dt = np.stack([r.translation for r in res]) / est.scale                           # [K, 3] model units
+    cal = calibrate_offsets(dR, dt, symmetry=est.symmetry, unsigned_axis=unsigned_axis, seed=seed)
     return {"k": int(k), "iters": int(iters), **cal}
