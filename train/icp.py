@@ -18,18 +18,24 @@ from equipose import icosahedral
 from equipose.errors import InvalidPointsError
 from equipose.refine import icp_multi, kabsch  # noqa: F401  (re-exported; the ICP core lives in the SDK)
 
-__all__ = ["kabsch", "icp_multi", "icp60", "icp60_outputs"]
+__all__ = ["kabsch", "icp_multi", "icp60_all", "icp60", "icp60_outputs"]
 
 
-def icp60(observed: np.ndarray, template: np.ndarray, iters: int = 30, bidirectional: bool = False) -> tuple:
-    """Best of 60 ICP runs started at the icosahedral rotations (translation: centroid alignment).
+def icp60_all(observed: np.ndarray, template: np.ndarray, iters: int = 30, bidirectional: bool = False,
+              tree: cKDTree | None = None) -> tuple:
+    """All 60 ICP runs started at the icosahedral rotations (translation: centroid alignment).
 
-    Returns (R [3, 3], t [3], residual float).
+    Returns (R [60, 3, 3], t [60, 3], residual [60]) in anchor order; ``tree``: a cKDTree of ``template`` to reuse.
     """
     x, y = np.asarray(observed, np.float64), np.asarray(template, np.float64)
     A = icosahedral.ANCHORS.astype(np.float64)                                 # [60, 3, 3]
     t0 = x.mean(0)[None] - np.einsum("jik,k->ji", A, y.mean(0))               # [60, 3]
-    R, t, res = icp_multi(x, y, A, t0, iters=iters, bidirectional=bidirectional)
+    return icp_multi(x, y, A, t0, iters=iters, bidirectional=bidirectional, tree=tree)
+
+
+def icp60(observed: np.ndarray, template: np.ndarray, iters: int = 30, bidirectional: bool = False) -> tuple:
+    """Best of the 60 ICP runs of ``icp60_all`` (lowest final residual). Returns (R [3, 3], t [3], residual float)."""
+    R, t, res = icp60_all(observed, template, iters=iters, bidirectional=bidirectional)
     j = int(np.argmin(res))
     return R[j], t[j], float(res[j])
 
@@ -46,12 +52,10 @@ def icp60_outputs(model_points: np.ndarray, template: np.ndarray, iters: int = 3
     if x.ndim != 3 or x.shape[-1] != 3:
         raise InvalidPointsError(f"ICP-60 outputs need model points [B, N, 3], got {x.shape}")
     y = np.asarray(template, np.float64)
-    A = icosahedral.ANCHORS.astype(np.float64)                                 # [60, 3, 3]
     tree = cKDTree(y)
     Rs, ts, rs = [], [], []
     for xb in x:
-        t0 = xb.mean(0)[None] - np.einsum("jik,k->ji", A, y.mean(0))           # [60, 3]
-        R, t, res = icp_multi(xb, y, A, t0, iters=iters, bidirectional=bidirectional, tree=tree)
+        R, t, res = icp60_all(xb, y, iters=iters, bidirectional=bidirectional, tree=tree)
         Rs.append(R); ts.append(t); rs.append(res)
     return {"hypothesis_rotations": np.stack(Rs).astype(np.float32), "hypothesis_translations": np.stack(ts).astype(np.float32),
             "hypothesis_scores": np.stack(rs).astype(np.float32),
