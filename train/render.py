@@ -317,6 +317,9 @@ def ensure_cache(root, category: str, split: str, cache_dir=None, limit: int | N
     from .data import MODELNET_SCALE
     from .tabletop import ensure_tabletop_cache, is_tabletop
     if is_tabletop(category):     # cup / bowl / can: metric-scale tabletop data (equipose.train.tabletop)
+        if settings is not None or source != "npy1024":
+            raise ConfigError(f"tabletop category {category!r} renders with its own camera settings and sources "
+                              "(equipose.train.tabletop); do not pass settings/source")
         return ensure_tabletop_cache(root, category, split, cache_dir=cache_dir, views=views, seed=seed,
                                      progress=progress, log=log, limit=limit)
     settings = settings or RenderSettings(distance=CATEGORY_DISTANCE.get(category, 2.0))

@@ -108,7 +108,7 @@ def _views_for(name: str, views: int, split: str) -> int:
 
 def ensure_tabletop_cache(root, category: str, split: str, cache_dir=None, views: int = 10, seed: int = 0,
                           distance_m: tuple = (0.5, 1.4), lateral: float = 0.12, progress: bool = True,
-                          log=print, limit: int | None = None, **_ignored) -> pathlib.Path:
+                          log=print, limit: int | None = None) -> pathlib.Path:
     """Render (once) the partial views of a tabletop category split into a ``RenderedPartial`` cache; returns its path.
 
     ``views`` per ModelNet instance (8× that per metric mesh / scan in train). Seeded per source: view k of source i
