@@ -32,6 +32,13 @@ def add_arguments(p) -> None:
     p.add_argument("--device", help="cpu | cuda | cuda:K (default: cuda when present)")
     p.add_argument("--freeze", help="comma-separated submodules kept fixed (blocks, pose_head, inv_head, decoder), "
                                     "e.g. 'decoder' when fine-tuning a complete model on partial views")
+    p.add_argument("--teacher", help="partial mode: distil from this complete-shape checkpoint of the same category "
+                   "(its pose and canonical shape on the complete cloud of each rendered view; no pose labels)")
+    p.add_argument("--teacher-refine", dest="teacher_refine", type=int,
+                   help="teacher's ICP re-scoring of its k best hypotheses (default 5; 0 = plain network)")
+    p.add_argument("--select-weight", dest="select_weight", type=float,
+                   help="distillation: weight of the cross-entropy that makes the student's own score pick the best "
+                   "hypothesis (default 0)")
     p.add_argument("--init", help="warm start from this checkpoint's weights (same preset and mode; fresh optimiser, "
                                   "step 0), e.g. a trained related category")
 

@@ -30,6 +30,7 @@ from .data import MODELNET_SCALE, category_symmetry, collate, default_data_root,
 from .inference import calibrate_model, predict_torch
 from .calibration import apply_calibration
 from .metrics import rotation_errors
+from .distill import distillation_loss
 from .model import EquiPoseNet, chamfer_min_of_60_loss
 
 __all__ = ["TrainConfig", "train"]
@@ -61,6 +62,9 @@ class TrainConfig:
     init: str = ""                        # warm start: weights of this checkpoint (same preset and mode), fresh
                                           # optimiser and step 0 (e.g. a related category); ignored on --resume
     freeze: str = ""                      # comma-separated submodules kept fixed: blocks, pose_head, inv_head, decoder
+    teacher: str = ""                     # partial only: distil from this complete-shape checkpoint (train/distill.py)
+    teacher_refine: int = 5               # teacher's ICP re-scoring of its k best hypotheses (0 = plain network)
+    select_weight: float = 0.0            # distillation: weight of the hypothesis-selection cross-entropy
 
     @classmethod
     def from_sources(cls, config_file=None, **overrides) -> "TrainConfig":
@@ -78,6 +82,8 @@ class TrainConfig:
         cfg = cls(**values)
         if cfg.mode not in ("complete", "partial"):
             raise ConfigError(f"mode must be complete or partial, got {cfg.mode!r}")
+        if cfg.teacher and cfg.mode != "partial":
+            raise ConfigError("--teacher distils a partial-view model: use it with --mode partial")
         if cfg.batch_size < 1 or cfg.steps < 0:
             raise ConfigError("batch_size must be ≥ 1 and steps ≥ 0")
         return cfg
@@ -201,6 +207,16 @@ def train(cfg: TrainConfig, resume: bool = False, log=print) -> pathlib.Path:
         out.mkdir(parents=True, exist_ok=True)
         (out / "config.json").write_text(json.dumps(dataclasses.asdict(cfg), indent=1))
         val_inputs = validation_inputs(train_ds, val_ds, cfg)
+    targets = None
+    if cfg.teacher:
+        from .distill import complete_clouds, teacher_targets
+        clouds = complete_clouds(cfg.data_root or str(default_data_root()), cfg.category, "train", cfg.train_limit)
+        if len(clouds) <= int(train_ds.instance.max()):
+            raise ConfigError(f"teacher: {len(clouds)} complete clouds for {int(train_ds.instance.max()) + 1} instances")
+        out.mkdir(parents=True, exist_ok=True)
+        tt = teacher_targets(cfg.teacher, train_ds, clouds, refine=cfg.teacher_refine, cache_file=out / "teacher.npz",
+                             log=log if rank == 0 else (lambda *_: None))
+        targets = {k: torch.from_numpy(np.asarray(v, np.float32)).to(device) for k, v in tt.items()}
     rng = np.random.default_rng([cfg.seed, rank, step])
     per_epoch = max(1, math.ceil(len(train_ds) / (cfg.batch_size * world)))
 
@@ -228,7 +244,12 @@ def train(cfg: TrainConfig, resume: bool = False, log=print) -> pathlib.Path:
         idx = rng.integers(0, len(train_ds), cfg.batch_size)
         batch = collate([train_ds.sample(int(i), rng) for i in idx])
         x = torch.from_numpy(batch["points"]).to(device)
-        loss = chamfer_min_of_60_loss(net(x, return_aux=True))
+        if targets is None:
+            loss = chamfer_min_of_60_loss(net(x, return_aux=True))
+        else:
+            v = torch.from_numpy(idx).to(device)
+            loss, _ = distillation_loss(net(x, return_aux=True), targets["shapes"][v], targets["rotations"][v],
+                                        targets["translations"][v], select_weight=cfg.select_weight)
         opt.zero_grad(set_to_none=True)
         loss.backward()
         opt.step()
