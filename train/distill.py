@@ -44,36 +44,37 @@ def complete_clouds(root, category: str, split: str, limit: int | None = None) -
 @torch.no_grad()
 def teacher_targets(teacher_path, dataset, clouds: list, refine: int = 5, batch_size: int = 32,
                     cache_file=None, log=print) -> dict:
-    """Run the complete-shape teacher on the complete cloud of every view of ``dataset`` (a ``RenderedPartial``).
+    """Teacher pose and canonical shape for every view of ``dataset`` (a ``RenderedPartial``).
 
-    ``refine`` > 0: the teacher's ``refine`` best hypotheses are ICP-refined against its own canonical shape and
-    re-ranked (``equipose.refine``), as the shipped complete models run. Cached in ``cache_file`` (keyed by the
-    teacher file, the view count and ``refine``).
+    The teacher sees each instance's complete cloud once, in the object frame the renderer posed it from; its pose
+    is carried to every view by that view's render pose (R_view · R_teacher, R_view · c + t_view) — exact for the
+    ICP-refined pose, and every view of an instance shares one frame. ``refine`` > 0: the teacher's ``refine`` best
+    hypotheses are ICP-refined against its own canonical shape and re-ranked (``equipose.refine``), as the shipped
+    complete models run. Cached in ``cache_file`` (keyed by the teacher file, the views and ``refine``).
     """
-    from equipose.refine import refine_hypotheses
     from equipose.geometry import farthest_point_order
+    from equipose.refine import refine_hypotheses
     teacher, ck = model_from_checkpoint(teacher_path)
     if teacher.partial:
         raise ConfigError(f"--teacher {teacher_path}: the teacher must be a complete-shape model (mode complete)")
-    key = json.dumps({"teacher": str(pathlib.Path(teacher_path).resolve()),
-                      "teacher_step": ck.get("step"), "views": len(dataset), "refine": refine, "v": 1})
+    key = json.dumps({"teacher": str(pathlib.Path(teacher_path).resolve()), "teacher_step": ck.get("step"),
+                      "views": len(dataset), "instances": len(clouds), "refine": refine, "v": 2})
     if cache_file is not None and pathlib.Path(cache_file).is_file():
         z = np.load(cache_file)
         if str(z["key"]) == key:
             return {k: z[k] for k in ("rotations", "translations", "shapes")}
     n = teacher.num_points
-    inputs = np.empty((len(dataset), n, 3), np.float32)
-    for i in range(len(dataset)):
-        R, t, inst = dataset.R[i], dataset.t[i], int(dataset.instance[i])
-        cam = (clouds[inst] @ R.T + t) / dataset.scale                                # [P, 3] model units
-        inputs[i] = cam[farthest_point_order(cam, n, start=0)]
-    Rs = np.empty((len(dataset), 3, 3)); ts = np.empty((len(dataset), 3))
+    inputs = np.empty((len(clouds), n, 3), np.float32)
+    for i, c in enumerate(clouds):
+        c = c / dataset.scale                                                        # [P, 3] model units, object frame
+        inputs[i] = c[farthest_point_order(c, n, start=0)]
+    R_inst = np.empty((len(clouds), 3, 3)); t_inst = np.empty((len(clouds), 3))
     shapes = None
-    for b in tqdm(range(0, len(dataset), batch_size), desc="teacher targets"):
+    for b in tqdm(range(0, len(clouds), batch_size), desc="teacher targets"):
         out = teacher(torch.from_numpy(inputs[b:b + batch_size]))
         S = out["canonical_shape"].numpy().astype(np.float64)                        # [b, M, 3]
         if shapes is None:
-            shapes = np.empty((len(dataset),) + S.shape[1:], np.float32)
+            shapes = np.empty((len(clouds),) + S.shape[1:], np.float32)
         hR = out["hypothesis_rotations"].numpy().astype(np.float64)                  # [b, A, 3, 3]
         ht = out["hypothesis_translations"].numpy().astype(np.float64)               # [b, A, 3]
         hs = out["hypothesis_scores"].numpy().astype(np.float64)                     # [b, A]
@@ -82,12 +83,16 @@ def teacher_targets(teacher_path, dataset, clouds: list, refine: int = 5, batch_
             if refine > 0:
                 r, tt, s = refine_hypotheses(inputs[b + j], S[j], r, tt, s, k=refine, iters=10, bidirectional=True)
             a = int(np.argmin(s))
-            Rs[b + j], ts[b + j] = r[a], tt[a]
+            R_inst[b + j], t_inst[b + j] = r[a], tt[a]
         shapes[b:b + len(S)] = S
-    res = {"rotations": Rs, "translations": ts, "shapes": shapes}
+    inst = np.asarray(dataset.instance)                                               # [V]
+    Rv = np.asarray(dataset.R, np.float64)                                            # [V, 3, 3]
+    res = {"rotations": Rv @ R_inst[inst],                                            # [V, 3, 3]
+           "translations": np.einsum("vij,vj->vi", Rv, t_inst[inst]) + dataset.t / dataset.scale,   # [V, 3]
+           "shapes": shapes[inst]}                                                    # [V, M, 3]
     if cache_file is not None:
         np.savez(cache_file, key=np.str_(key), **res)
-    log(f"teacher targets: {len(dataset)} views from {teacher_path} (refine {refine})")
+    log(f"teacher targets: {len(clouds)} instances, {len(dataset)} views from {teacher_path} (refine {refine})")
     return res
 
 
