@@ -1,0 +1,108 @@
+"""Partial-view distillation from a complete-shape teacher (train/distill.py): loss semantics, targets, CLI."""
+import numpy as np
+import pytest
+
+torch = pytest.importorskip("torch")
+
+from scipy.spatial.transform import Rotation  # noqa: E402
+
+from equipose.cli import main  # noqa: E402
+from equipose.errors import ConfigError  # noqa: E402
+from equipose.train.checkpoint import load_checkpoint  # noqa: E402
+from equipose.train.distill import distillation_loss, teacher_targets  # noqa: E402
+
+
+def _outputs(R_hyp, t_hyp, shape, scores=None):
+    B, A = R_hyp.shape[:2]
+    return {"canonical_shape": shape, "hypothesis_rotations": R_hyp, "hypothesis_translations": t_hyp,
+            "hypothesis_scores": torch.rand(B, A) if scores is None else scores, "quaternion_norm": torch.ones(B, A)}
+
+
+def test_loss_is_zero_when_one_hypothesis_matches_the_teacher():
+    g = torch.Generator().manual_seed(0)
+    S = torch.rand(2, 64, 3, generator=g) - 0.5                                   # teacher shapes [B, M, 3]
+    R_t = torch.tensor(Rotation.random(2, random_state=1).as_matrix(), dtype=torch.float32)
+    t_t = torch.randn(2, 3, generator=g)
+    R_h = torch.tensor(Rotation.random(2 * 60, random_state=2).as_matrix(), dtype=torch.float32).view(2, 60, 3, 3)
+    t_h = torch.randn(2, 60, 3, generator=g)
+    far, _ = distillation_loss(_outputs(R_h, t_h, S), S, R_t, t_t)
+    R_h[:, 17], t_h[:, 17] = R_t, t_t                                             # one hypothesis hits the target
+    hit, parts = distillation_loss(_outputs(R_h, t_h, S), S, R_t, t_t)
+    assert hit.item() < 1e-6 and parts["shape"] < 1e-6 and parts["pose"] < 1e-6
+    assert far.item() > 1e-3
+    # a wrong canonical shape is penalised even when the pose is right
+    wrong, parts = distillation_loss(_outputs(R_h, t_h, S * 1.5), S, R_t, t_t)
+    assert parts["shape"] > 1e-3 and parts["pose"] < 1e-6
+
+
+def test_pose_term_ignores_rotations_about_a_symmetry_axis():
+    z = torch.linspace(-0.5, 0.5, 20)
+    ang = torch.linspace(0, 2 * np.pi, 37)[:-1]
+    zz, aa = torch.meshgrid(z, ang, indexing="ij")
+    S = torch.stack([0.2 * aa.cos(), 0.2 * aa.sin(), zz], -1).reshape(1, -1, 3)   # cylinder about z [1, 720, 3]
+    R_t = torch.eye(3)[None]
+    spin = torch.tensor(Rotation.from_euler("z", 50, degrees=True).as_matrix(), dtype=torch.float32)
+    tilt = torch.tensor(Rotation.from_euler("x", 50, degrees=True).as_matrix(), dtype=torch.float32)
+    for R, small in ((spin, True), (tilt, False)):
+        R_h = R.expand(1, 60, 3, 3).clone()
+        _, parts = distillation_loss(_outputs(R_h, torch.zeros(1, 60, 3), S), S, R_t, torch.zeros(1, 3))
+        assert (parts["pose"] < 1e-3) == small
+
+
+def test_selection_term_prefers_the_best_hypothesis():
+    S = torch.rand(1, 32, 3) - 0.5
+    R_h = torch.tensor(Rotation.random(60, random_state=3).as_matrix(), dtype=torch.float32)[None]
+    t = torch.zeros(1, 60, 3)
+    R_t = R_h[:, 5].clone()
+    good = torch.full((1, 60), 1.0); good[0, 5] = 0.0
+    bad = torch.full((1, 60), 1.0); bad[0, 9] = 0.0
+    _, pg = distillation_loss(_outputs(R_h, t, S, good), S, R_t, torch.zeros(1, 3), select_weight=1.0)
+    _, pb = distillation_loss(_outputs(R_h, t, S, bad), S, R_t, torch.zeros(1, 3), select_weight=1.0)
+    assert pg["select"] < pb["select"]
+
+
+def test_teacher_targets_follow_the_render_pose(tmp_path, data_root):
+    """Every view's target is the teacher's object-frame pose carried by that view's render pose."""
+    from equipose.train.checkpoint import save_checkpoint
+    from equipose.train.data import make_dataset
+    from equipose.train.distill import complete_clouds
+    from equipose.train.model import EquiPoseNet
+    torch.manual_seed(0)
+    teacher = tmp_path / "teacher.pt"
+    save_checkpoint(teacher, EquiPoseNet("tiny", partial=False), category="airplane", scale=2.0, step=0)
+    ds = make_dataset(data_root, "airplane", "partial", "train", 256, train=True, limit=3, cache_dir=tmp_path,
+                      render_opts={"views": 2})
+    clouds = complete_clouds(data_root, "airplane", "train", limit=3)
+    tt = teacher_targets(teacher, ds, clouds, refine=2, cache_file=tmp_path / "t.npz", log=lambda *_: None)
+    V = len(ds)
+    assert tt["rotations"].shape == (V, 3, 3) and tt["translations"].shape == (V, 3) and tt["shapes"].shape[0] == V
+    for v in range(V):
+        R = tt["rotations"][v]
+        assert np.allclose(R @ R.T, np.eye(3), atol=1e-5)
+    # two views of one instance: the relative target rotation is the relative render rotation
+    i, j = np.flatnonzero(ds.instance == ds.instance[0])[:2]
+    rel_t = tt["rotations"][j] @ tt["rotations"][i].T
+    rel_r = ds.R[j] @ ds.R[i].T
+    assert np.allclose(rel_t, rel_r, atol=1e-5)
+    again = teacher_targets(teacher, ds, clouds, refine=2, cache_file=tmp_path / "t.npz", log=lambda *_: None)
+    assert np.array_equal(again["rotations"], tt["rotations"])                   # cached
+    with pytest.raises(ConfigError, match="complete-shape"):
+        student = tmp_path / "student.pt"
+        save_checkpoint(student, EquiPoseNet("tiny", partial=True), category="airplane", scale=2.0, step=0)
+        teacher_targets(student, ds, clouds, refine=0)
+
+
+def test_cli_distills_a_partial_model(tmp_path, data_root, capsys):
+    teacher_run, run = tmp_path / "teacher", tmp_path / "student"
+    common = ["--category", "airplane", "--data-root", str(data_root), "--preset", "tiny", "--batch-size", "2",
+              "--train-limit", "3", "--val-size", "6", "--val-every", "2", "--cache-dir", str(tmp_path / "c"),
+              "--views", "2", "--steps", "2"]
+    assert main(["train", *common, "--mode", "complete", "--out", str(teacher_run)]) == 0
+    assert main(["train", *common, "--mode", "complete", "--out", str(run), "--teacher",
+                 str(teacher_run / "latest.pt")]) == 2
+    assert "use it with --mode partial" in capsys.readouterr().err
+    assert main(["train", *common, "--mode", "partial", "--out", str(run), "--teacher",
+                 str(teacher_run / "latest.pt"), "--select-weight", "0.1"]) == 0
+    ck = load_checkpoint(run / "latest.pt")
+    assert ck["partial"] and ck["step"] == 2 and ck["training"]["config"]["teacher"].endswith("latest.pt")
+    assert (run / "teacher.npz").is_file()
