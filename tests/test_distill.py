@@ -6,10 +6,14 @@ torch = pytest.importorskip("torch")
 
 from scipy.spatial.transform import Rotation  # noqa: E402
 
+from equipose import icosahedral  # noqa: E402
 from equipose.cli import main  # noqa: E402
 from equipose.errors import ConfigError  # noqa: E402
 from equipose.train.checkpoint import load_checkpoint  # noqa: E402
 from equipose.train.distill import distillation_loss, teacher_targets  # noqa: E402
+
+
+ANCHORS = torch.tensor(icosahedral.ANCHORS, dtype=torch.float32)                   # [60, 3, 3]
 
 
 def _outputs(R_hyp, t_hyp, shape, scores=None):
@@ -25,13 +29,17 @@ def test_loss_is_zero_when_one_hypothesis_matches_the_teacher():
     t_t = torch.randn(2, 3, generator=g)
     R_h = torch.tensor(Rotation.random(2 * 60, random_state=2).as_matrix(), dtype=torch.float32).view(2, 60, 3, 3)
     t_h = torch.randn(2, 60, 3, generator=g)
-    far, _ = distillation_loss(_outputs(R_h, t_h, S), S, R_t, t_t)
-    R_h[:, 17], t_h[:, 17] = R_t, t_t                                             # one hypothesis hits the target
-    hit, parts = distillation_loss(_outputs(R_h, t_h, S), S, R_t, t_t)
+    far, _ = distillation_loss(_outputs(R_h, t_h, S), S, R_t, t_t, ANCHORS)
+    near = torch.einsum("aij,bij->ba", ANCHORS, R_t).argmax(1)                    # [B] anchor nearest the target
+    other = (near + 1) % 60
+    R_h[[0, 1], other], t_h[[0, 1], other] = R_t, t_t                           # a far anchor's hypothesis: no credit
+    assert distillation_loss(_outputs(R_h, t_h, S), S, R_t, t_t, ANCHORS)[1]["pose"] > 1e-3
+    R_h[[0, 1], near], t_h[[0, 1], near] = R_t, t_t                             # the near anchor's hypothesis hits it
+    hit, parts = distillation_loss(_outputs(R_h, t_h, S), S, R_t, t_t, ANCHORS)
     assert hit.item() < 1e-6 and parts["shape"] < 1e-6 and parts["pose"] < 1e-6
     assert far.item() > 1e-3
     # a wrong canonical shape is penalised even when the pose is right
-    wrong, parts = distillation_loss(_outputs(R_h, t_h, S * 1.5), S, R_t, t_t)
+    wrong, parts = distillation_loss(_outputs(R_h, t_h, S * 1.5), S, R_t, t_t, ANCHORS)
     assert parts["shape"] > 1e-3 and parts["pose"] < 1e-6
 
 
@@ -45,19 +53,21 @@ def test_pose_term_ignores_rotations_about_a_symmetry_axis():
     tilt = torch.tensor(Rotation.from_euler("x", 50, degrees=True).as_matrix(), dtype=torch.float32)
     for R, small in ((spin, True), (tilt, False)):
         R_h = R.expand(1, 60, 3, 3).clone()
-        _, parts = distillation_loss(_outputs(R_h, torch.zeros(1, 60, 3), S), S, R_t, torch.zeros(1, 3))
+        _, parts = distillation_loss(_outputs(R_h, torch.zeros(1, 60, 3), S), S, R_t, torch.zeros(1, 3), ANCHORS)
         assert (parts["pose"] < 1e-3) == small
 
 
 def test_selection_term_prefers_the_best_hypothesis():
     S = torch.rand(1, 32, 3) - 0.5
-    R_h = torch.tensor(Rotation.random(60, random_state=3).as_matrix(), dtype=torch.float32)[None]
+    R_h = ANCHORS[None].clone()                                                  # [1, 60, 3, 3]
     t = torch.zeros(1, 60, 3)
-    R_t = R_h[:, 5].clone()
+    R_t = R_h[:, 5] @ torch.tensor(Rotation.from_euler("z", 3, degrees=True).as_matrix(), dtype=torch.float32)
     good = torch.full((1, 60), 1.0); good[0, 5] = 0.0
     bad = torch.full((1, 60), 1.0); bad[0, 9] = 0.0
-    _, pg = distillation_loss(_outputs(R_h, t, S, good), S, R_t, torch.zeros(1, 3), select_weight=1.0)
-    _, pb = distillation_loss(_outputs(R_h, t, S, bad), S, R_t, torch.zeros(1, 3), select_weight=1.0)
+    _, pg = distillation_loss(_outputs(R_h, t, S, good), S, R_t, torch.zeros(1, 3), ANCHORS,
+                              select_weight=1.0)
+    _, pb = distillation_loss(_outputs(R_h, t, S, bad), S, R_t, torch.zeros(1, 3), ANCHORS,
+                              select_weight=1.0)
     assert pg["select"] < pb["select"]
 
 

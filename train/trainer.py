@@ -249,7 +249,8 @@ def train(cfg: TrainConfig, resume: bool = False, log=print) -> pathlib.Path:
         else:
             v = torch.from_numpy(idx).to(device)
             loss, _ = distillation_loss(net(x, return_aux=True), targets["shapes"][v], targets["rotations"][v],
-                                        targets["translations"][v], select_weight=cfg.select_weight)
+                                        targets["translations"][v], model.anchors,
+                                        select_weight=cfg.select_weight)
         opt.zero_grad(set_to_none=True)
         loss.backward()
         opt.step()
