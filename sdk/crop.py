@@ -123,10 +123,13 @@ def depth_to_metres(depth, depth_unit="mm", *, check_plausible: bool = True) -> 
     if depth.dtype == np.bool_ or not (np.issubdtype(depth.dtype, np.integer) or np.issubdtype(depth.dtype, np.floating)):
         raise DepthDtypeError(f"depth dtype {depth.dtype} is not numeric; pass uint16 millimetres or float metres")
     scale = _unit_scale(depth_unit)
-    d = depth.astype(np.float32) * np.float32(scale)                            # [H, W] metres
-    valid = np.isfinite(d) & (d > 0)                                            # [H, W]
-    d[~valid] = 0.0
-    n_valid = int(valid.sum())
+    d = np.multiply(depth, np.float32(scale), dtype=np.float32)                 # [H, W] metres
+    if np.issubdtype(depth.dtype, np.unsignedinteger):                          # always finite and ≥ 0: 0 stays 0
+        n_valid = int(np.count_nonzero(depth))
+    else:
+        valid = np.isfinite(d) & (d > 0)                                        # [H, W]
+        d[~valid] = 0.0
+        n_valid = int(np.count_nonzero(valid))
     if n_valid == 0:
         raise EmptyDepthError(f"depth frame {depth.shape} has no valid pixel (all 0, negative, NaN or Inf); "
                               "check that the camera delivers depth and the scene is within its range")
@@ -483,8 +486,12 @@ def prepare_points(points_m, num_points: int, scale: float, *, min_points: int =
 # ----------------------------------------------------------------------------------------------------------------------
 # Auto crop: tabletop segmentation for users without a detector
 
-def fit_plane_ransac(points: np.ndarray, threshold: float = 0.01, iterations: int = 200, seed: int = 0):
+def fit_plane_ransac(points: np.ndarray, threshold: float = 0.01, iterations: int = 200, seed: int = 0,
+                     confidence: float = 0.999, chunk: int = 32):
     """RANSAC plane fit with a least-squares refit on the inliers.
+
+    Adaptive: hypotheses are scored ``chunk`` at a time, stopping (before ``iterations``) once the best inlier
+    fraction w makes a better, missed plane unlikely: tried ≥ log(1 − ``confidence``) / log(1 − w³).
 
     Convention: ``points`` [P, 3] metres. Returns (normal [3] unit, offset d, inliers [P] bool) with
     ``n · x + d = 0`` on the plane, oriented so the camera origin has positive signed distance (d > 0): objects
@@ -502,14 +509,24 @@ def fit_plane_ransac(points: np.ndarray, threshold: float = 0.01, iterations: in
     ok = norms > 1e-9
     normals, a = normals[ok] / norms[ok, None], a[ok]
     offsets = -np.einsum("ij,ij->i", normals, a)                                # [I']
-    sub = points[:: max(1, P // 1500)].astype(np.float32)                       # [S ≤ 3000, 3] scoring subset
-    nf = normals.astype(np.float32)                                             # [I', 3]
-    # signed distances by broadcasting, not a K=3 BLAS matmul (several times slower, worse on a loaded CPU)
-    dist = offsets.astype(np.float32) + sub[:, :1] * nf[:, 0] + sub[:, 1:2] * nf[:, 1] + sub[:, 2:] * nf[:, 2]   # [S, I']
-    counts = np.count_nonzero(np.abs(dist) < threshold, axis=0)                 # [I']
-    if len(counts) == 0:
+    if len(normals) == 0:
         raise TooFewPointsError("plane fit failed: all sampled point triples are collinear")
-    j = int(np.argmax(counts))
+    sub = points[:: max(1, P // 1500)].astype(np.float32)                       # [S ≤ 3000, 3] scoring subset
+    sx, sy, sz = sub[:, :1], sub[:, 1:2], sub[:, 2:]                            # [S, 1] each
+    nf, of = normals.astype(np.float32), offsets.astype(np.float32)             # [I', 3], [I']
+    best_count, j, done = -1, 0, 0
+    for lo in range(0, len(nf), chunk):                                         # adaptive RANSAC: score in chunks,
+        n_c, o_c = nf[lo:lo + chunk], of[lo:lo + chunk]                         # stop once more hypotheses cannot
+        # signed distances by broadcasting, not a K=3 BLAS matmul (several times slower, worse on a loaded CPU)
+        dist = o_c + sx * n_c[:, 0] + sy * n_c[:, 1] + sz * n_c[:, 2]          # [S, c]
+        counts = np.count_nonzero(np.abs(dist) < threshold, axis=0)             # [c]
+        k = int(np.argmax(counts))
+        if counts[k] > best_count:
+            best_count, j = int(counts[k]), lo + k
+        done = lo + len(n_c)
+        w = best_count / len(sub)                                               # inlier fraction of the best so far
+        if w >= 1 or done >= math.log(1 - confidence) / math.log(max(1e-12, 1 - w ** 3)):
+            break                                                               # P(missed better plane) < 1 − conf.
     best_n, best_d = normals[j], offsets[j]
     for _ in range(2):                                                          # least-squares refinement
         inl = np.abs(points @ best_n + best_d) < threshold                      # [P]
