@@ -53,8 +53,11 @@ def test_pose_term_ignores_rotations_about_a_symmetry_axis():
     tilt = torch.tensor(Rotation.from_euler("x", 50, degrees=True).as_matrix(), dtype=torch.float32)
     for R, small in ((spin, True), (tilt, False)):
         R_h = R.expand(1, 60, 3, 3).clone()
-        _, parts = distillation_loss(_outputs(R_h, torch.zeros(1, 60, 3), S), S, R_t, torch.zeros(1, 3), ANCHORS)
+        _, parts = distillation_loss(_outputs(R_h, torch.zeros(1, 60, 3), S), S, R_t, torch.zeros(1, 3), ANCHORS,
+                                     symmetric=True)
         assert (parts["pose"] < 1e-3) == small
+        _, strict = distillation_loss(_outputs(R_h, torch.zeros(1, 60, 3), S), S, R_t, torch.zeros(1, 3), ANCHORS)
+        assert strict["pose"] > 0.5                                               # non-symmetric: the spin counts
 
 
 def test_selection_term_prefers_the_best_hypothesis():

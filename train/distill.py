@@ -16,8 +16,8 @@ Convention:
 """
 from __future__ import annotations
 
-import hashlib
 import json
+import math
 import pathlib
 
 import numpy as np
@@ -103,19 +103,20 @@ def _chamfer(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
 
 
 def distillation_loss(out: dict, shapes: torch.Tensor, rotations: torch.Tensor, translations: torch.Tensor,
-                      anchors: torch.Tensor, quat_weight: float = 0.1, select_weight: float = 0.0,
-                      select_tolerance: float = 1.5) -> tuple:
+                      anchors: torch.Tensor, symmetric: bool = False, quat_weight: float = 0.1,
+                      select_weight: float = 0.0, select_tolerance: float = 1.5, select_deg: float = 10.0) -> tuple:
     """Student loss against teacher targets; returns (loss, parts dict of floats).
 
     shape: chamfer(student canonical shape, teacher shape) — pins the student to the teacher's frame.
-    pose: chamfer(teacher shape posed by the hypothesis of the anchor nearest to the teacher's rotation, teacher shape
-    posed by the teacher) — that anchor's residual can reach the target (θmax ≥ the anchors' covering radius), and the
-    chamfer needs no special case for symmetric shapes. (A min over the 60 hypotheses instead locks onto a wrong local
-    minimum, e.g. a flipped airplane: measured 152° median after 250 steps.)
-    select (optional): cross-entropy making the student's own partial-view chamfer score pick a hypothesis whose pose
-    chamfer is within ``select_tolerance`` × that of the anchor's (uniform target over them: all equally right for
-    a symmetric shape). ``out`` from ``forward(..., return_aux=True)``; shapes [B, M, 3], rotations [B, 3, 3],
-    translations [B, 3], anchors [A, 3, 3].
+    pose, on the hypothesis of the anchor nearest to the teacher's rotation (its residual can reach the target: θmax
+    ≥ the anchors' covering radius): ``symmetric`` — chamfer(teacher shape posed by it, teacher shape posed by the
+    teacher), blind to the spin about the axis, which a partial view of a symmetric shape cannot tell; otherwise
+    ‖R − R*‖²_F + ‖t − t*‖² (a chamfer is too flat there: a roll-flipped airplane scores lower than a 21°-off upright
+    one). A min over the 60 hypotheses instead locks onto such flips (measured: 152° median after 250 steps).
+    select (optional): cross-entropy making the student's own partial-view chamfer score pick a right hypothesis —
+    uniform target over the nearest anchor's and those within ``select_deg`` of R* (symmetric: pose chamfer within
+    ``select_tolerance`` × the nearest anchor's). ``out`` from ``forward(..., return_aux=True)``; shapes [B, M, 3],
+    rotations [B, 3, 3], translations [B, 3], anchors [A, 3, 3].
     """
     S = shapes
     loss_shape = _chamfer(out["canonical_shape"], S).mean()
@@ -124,15 +125,24 @@ def distillation_loss(out: dict, shapes: torch.Tensor, rotations: torch.Tensor, 
     tr = torch.einsum("aij,bij->ba", anchors, rotations)                              # [B, A] trace(Aᵀ R*) ∝ cos
     near = tr.argmax(dim=1)                                                           # [B] nearest anchor
     ar = torch.arange(len(near), device=near.device)
-    posed = torch.einsum("bmj,bakj->bamk", S, R) + t[:, :, None]                      # [B, A, M, 3]
-    c = _chamfer(posed, target[:, None].expand_as(posed))                            # [B, A]
-    loss_pose = c[ar, near].mean()
+    if symmetric:
+        posed = torch.einsum("bmj,bakj->bamk", S, R) + t[:, :, None]                  # [B, A, M, 3]
+        c = _chamfer(posed, target[:, None].expand_as(posed))                        # [B, A]
+        loss_pose = c[ar, near].mean()
+    else:
+        loss_pose = ((R[ar, near] - rotations).pow(2).sum((1, 2)) + (t[ar, near] - translations).pow(2).sum(1)).mean()
     reg = (out["quaternion_norm"] - 1.0).pow(2).mean()
     loss = loss_shape + loss_pose + quat_weight * reg
     parts = {"shape": loss_shape.item(), "pose": loss_pose.item()}
     if select_weight > 0:
-        cd = c.detach()
-        ok = (cd <= select_tolerance * cd[ar, near][:, None] + 1e-9).float()          # [B, A] ⊇ the near anchor
+        if symmetric:
+            cd = c.detach()
+            ok = cd <= select_tolerance * cd[ar, near][:, None] + 1e-9               # [B, A]
+        else:
+            cos = (torch.einsum("baij,bij->ba", R.detach(), rotations) - 1) / 2      # [B, A] cos of the angle to R*
+            ok = cos >= math.cos(math.radians(select_deg))
+        ok[ar, near] = True
+        ok = ok.float()
         s = out["hypothesis_scores"]                                                  # [B, A]
         logp = torch.log_softmax(-s / s.detach().std(dim=1, keepdim=True).clamp_min(1e-9), dim=1)
         loss_sel = -(ok * logp).sum(1).div(ok.sum(1)).mean()

@@ -250,7 +250,7 @@ def train(cfg: TrainConfig, resume: bool = False, log=print) -> pathlib.Path:
             v = torch.from_numpy(idx).to(device)
             loss, _ = distillation_loss(net(x, return_aux=True), targets["shapes"][v], targets["rotations"][v],
                                         targets["translations"][v], model.anchors,
-                                        select_weight=cfg.select_weight)
+                                        symmetric=symmetry != "none", select_weight=cfg.select_weight)
         opt.zero_grad(set_to_none=True)
         loss.backward()
         opt.step()
