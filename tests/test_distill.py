@@ -35,12 +35,16 @@ def test_loss_is_zero_when_one_hypothesis_matches_the_teacher():
     R_h[[0, 1], other], t_h[[0, 1], other] = R_t, t_t                           # a far anchor's hypothesis: no credit
     assert distillation_loss(_outputs(R_h, t_h, S), S, R_t, t_t, ANCHORS)[1]["pose"] > 1e-3
     R_h[[0, 1], near], t_h[[0, 1], near] = R_t, t_t                             # the near anchor's hypothesis hits it
-    hit, parts = distillation_loss(_outputs(R_h, t_h, S), S, R_t, t_t, ANCHORS)
+    hit, parts = distillation_loss(_outputs(R_h, t_h, S), S, R_t, t_t, ANCHORS, reach_weight=0.0)
+    assert parts["reach"] > 1e-3                                                 # the other 59 are still far
     assert hit.item() < 1e-6 and parts["shape"] < 1e-6 and parts["pose"] < 1e-6
     assert far.item() > 1e-3
     # a wrong canonical shape is penalised even when the pose is right
     wrong, parts = distillation_loss(_outputs(R_h, t_h, S * 1.5), S, R_t, t_t, ANCHORS)
     assert parts["shape"] > 1e-3 and parts["pose"] < 1e-6
+    every = distillation_loss(_outputs(R_t[:, None].expand(2, 60, 3, 3), t_t[:, None].expand(2, 60, 3), S), S, R_t,
+                              t_t, ANCHORS)[0]                                   # all 60 on the teacher pose
+    assert every.item() < 1e-6
 
 
 def test_pose_term_ignores_rotations_about_a_symmetry_axis():

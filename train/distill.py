@@ -104,7 +104,8 @@ def _chamfer(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
 
 def distillation_loss(out: dict, shapes: torch.Tensor, rotations: torch.Tensor, translations: torch.Tensor,
                       anchors: torch.Tensor, symmetric: bool = False, quat_weight: float = 0.1,
-                      select_weight: float = 0.0, select_tolerance: float = 1.5, select_deg: float = 10.0) -> tuple:
+                      select_weight: float = 0.0, select_tolerance: float = 1.5, select_deg: float = 10.0,
+                      reach_weight: float = 1.0) -> tuple:
     """Student loss against teacher targets; returns (loss, parts dict of floats).
 
     shape: chamfer(student canonical shape, teacher shape) — pins the student to the teacher's frame.
@@ -113,6 +114,10 @@ def distillation_loss(out: dict, shapes: torch.Tensor, rotations: torch.Tensor, 
     teacher), blind to the spin about the axis, which a partial view of a symmetric shape cannot tell; otherwise
     ‖R − R*‖²_F + ‖t − t*‖² (a chamfer is too flat there: a roll-flipped airplane scores lower than a 21°-off upright
     one). A min over the 60 hypotheses instead locks onto such flips (measured: 152° median after 250 steps).
+    reach: ``reach_weight`` × the same term averaged over *all* 60 hypotheses, so each one turns as far toward the
+    teacher pose as its residual allows. Then no hypothesis stays at a symmetric flip of the object (a roll-flipped
+    airplane), which the partial-view chamfer score could not tell from the right pose, and the in-graph chamfer
+    selection picks the right one.
     select (optional): cross-entropy making the student's own partial-view chamfer score pick a right hypothesis —
     uniform target over the nearest anchor's and those within ``select_deg`` of R* (symmetric: pose chamfer within
     ``select_tolerance`` × the nearest anchor's). ``out`` from ``forward(..., return_aux=True)``; shapes [B, M, 3],
@@ -128,12 +133,15 @@ def distillation_loss(out: dict, shapes: torch.Tensor, rotations: torch.Tensor, 
     if symmetric:
         posed = torch.einsum("bmj,bakj->bamk", S, R) + t[:, :, None]                  # [B, A, M, 3]
         c = _chamfer(posed, target[:, None].expand_as(posed))                        # [B, A]
-        loss_pose = c[ar, near].mean()
+        per = c                                                                       # [B, A]
     else:
-        loss_pose = ((R[ar, near] - rotations).pow(2).sum((1, 2)) + (t[ar, near] - translations).pow(2).sum(1)).mean()
+        per = ((R - rotations[:, None]).pow(2).sum((2, 3))
+               + (t - translations[:, None]).pow(2).sum(2))                           # [B, A]
+    loss_pose = per[ar, near].mean()
+    loss_reach = per.mean()
     reg = (out["quaternion_norm"] - 1.0).pow(2).mean()
-    loss = loss_shape + loss_pose + quat_weight * reg
-    parts = {"shape": loss_shape.item(), "pose": loss_pose.item()}
+    loss = loss_shape + loss_pose + reach_weight * loss_reach + quat_weight * reg
+    parts = {"shape": loss_shape.item(), "pose": loss_pose.item(), "reach": loss_reach.item()}
     if select_weight > 0:
         if symmetric:
             cd = c.detach()
