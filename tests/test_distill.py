@@ -10,7 +10,7 @@ from equipose import icosahedral  # noqa: E402
 from equipose.cli import main  # noqa: E402
 from equipose.errors import ConfigError  # noqa: E402
 from equipose.train.checkpoint import load_checkpoint  # noqa: E402
-from equipose.train.distill import distillation_loss, teacher_targets  # noqa: E402
+from equipose.train.distill import distillation_loss, reachable_targets, teacher_targets  # noqa: E402
 
 
 ANCHORS = torch.tensor(icosahedral.ANCHORS, dtype=torch.float32)                   # [60, 3, 3]
@@ -42,9 +42,14 @@ def test_loss_is_zero_when_one_hypothesis_matches_the_teacher():
     # a wrong canonical shape is penalised even when the pose is right
     wrong, parts = distillation_loss(_outputs(R_h, t_h, S * 1.5), S, R_t, t_t, ANCHORS)
     assert parts["shape"] > 1e-3 and parts["pose"] < 1e-6
-    every = distillation_loss(_outputs(R_t[:, None].expand(2, 60, 3, 3), t_t[:, None].expand(2, 60, 3), S), S, R_t,
-                              t_t, ANCHORS)[0]                                   # all 60 on the teacher pose
-    assert every.item() < 1e-6
+    goals = reachable_targets(ANCHORS, R_t, 40.0)                                # [B, 60, 3, 3]
+    ang = np.degrees(np.arccos(np.clip((np.einsum("aij,baij->ba", ANCHORS.numpy(), goals.numpy()) - 1) / 2, -1, 1)))
+    assert ang.max() <= 40.0 + 1e-3                                             # within reach of each anchor
+    every = distillation_loss(_outputs(goals, t_t[:, None].expand(2, 60, 3), S), S, R_t, t_t, ANCHORS)[0]
+    assert every.item() < 1e-5                                                  # all 60 on their reachable goals
+    pulled = distillation_loss(_outputs(R_t[:, None].expand(2, 60, 3, 3), t_t[:, None].expand(2, 60, 3), S), S,
+                               R_t, t_t, ANCHORS)[0]
+    assert pulled.item() > 0.1                                                  # out of reach for far anchors
 
 
 def test_pose_term_ignores_rotations_about_a_symmetry_axis():

@@ -96,6 +96,24 @@ def teacher_targets(teacher_path, dataset, clouds: list, refine: int = 5, batch_
     return res
 
 
+@torch.no_grad()
+def reachable_targets(anchors: torch.Tensor, rotations: torch.Tensor, max_deg: float) -> torch.Tensor:
+    """Per anchor, the rotation on the geodesic from the anchor toward ``rotations`` at most ``max_deg`` away.
+
+    anchors [A, 3, 3], rotations [B, 3, 3] → [B, A, 3, 3] (detached; scipy's rotation vectors are stable near 180°).
+    """
+    from scipy.spatial.transform import Rotation
+    A_np = anchors.detach().cpu().double().numpy()                                   # [A, 3, 3]
+    R_np = rotations.detach().cpu().double().numpy()                                 # [B, 3, 3]
+    rel = np.einsum("aji,bjk->baik", A_np, R_np)                                      # [B, A, 3, 3] A_aᵀ R*
+    rv = Rotation.from_matrix(rel.reshape(-1, 3, 3)).as_rotvec()                      # [B·A, 3]
+    ang = np.linalg.norm(rv, axis=1, keepdims=True)
+    rv *= np.minimum(1.0, np.radians(max_deg) / np.maximum(ang, 1e-12))
+    step = Rotation.from_rotvec(rv).as_matrix().reshape(rel.shape)                    # [B, A, 3, 3]
+    out = np.einsum("aij,bajk->baik", A_np, step)
+    return torch.as_tensor(out, dtype=rotations.dtype, device=rotations.device)
+
+
 def _chamfer(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
     """Bidirectional chamfer [...] between point sets a [..., M, 3] and b [..., K, 3] (mean squared distances)."""
     d2 = squared_distances(a, b)                                                      # [..., M, K]
@@ -105,7 +123,7 @@ def _chamfer(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
 def distillation_loss(out: dict, shapes: torch.Tensor, rotations: torch.Tensor, translations: torch.Tensor,
                       anchors: torch.Tensor, symmetric: bool = False, quat_weight: float = 0.1,
                       select_weight: float = 0.0, select_tolerance: float = 1.5, select_deg: float = 10.0,
-                      reach_weight: float = 1.0) -> tuple:
+                      reach_weight: float = 1.0, reach_deg: float = 40.0) -> tuple:
     """Student loss against teacher targets; returns (loss, parts dict of floats).
 
     shape: chamfer(student canonical shape, teacher shape) — pins the student to the teacher's frame.
@@ -114,10 +132,12 @@ def distillation_loss(out: dict, shapes: torch.Tensor, rotations: torch.Tensor, 
     teacher), blind to the spin about the axis, which a partial view of a symmetric shape cannot tell; otherwise
     ‖R − R*‖²_F + ‖t − t*‖² (a chamfer is too flat there: a roll-flipped airplane scores lower than a 21°-off upright
     one). A min over the 60 hypotheses instead locks onto such flips (measured: 152° median after 250 steps).
-    reach: ``reach_weight`` × the same term averaged over *all* 60 hypotheses, so each one turns as far toward the
-    teacher pose as its residual allows. Then no hypothesis stays at a symmetric flip of the object (a roll-flipped
-    airplane), which the partial-view chamfer score could not tell from the right pose, and the in-graph chamfer
-    selection picks the right one.
+    reach: ``reach_weight`` × the same term averaged over *all* 60 hypotheses, each against the teacher pose clamped
+    to within ``reach_deg`` of its own anchor (≥ the anchors' covering radius, 37.4°, so the nearest anchor's target
+    is the teacher pose itself). Every hypothesis turns toward the teacher pose, none stays on a symmetric flip of the
+    object (a roll-flipped airplane) that the partial-view chamfer score could not tell from the right pose, and each
+    target is reachable without stretching the residual quaternion (an unclamped pull fought its norm penalty:
+    near-anchor error stuck at 13°).
     select (optional): cross-entropy making the student's own partial-view chamfer score pick a right hypothesis —
     uniform target over the nearest anchor's and those within ``select_deg`` of R* (symmetric: pose chamfer within
     ``select_tolerance`` × the nearest anchor's). ``out`` from ``forward(..., return_aux=True)``; shapes [B, M, 3],
@@ -130,13 +150,15 @@ def distillation_loss(out: dict, shapes: torch.Tensor, rotations: torch.Tensor, 
     tr = torch.einsum("aij,bij->ba", anchors, rotations)                              # [B, A] trace(Aᵀ R*) ∝ cos
     near = tr.argmax(dim=1)                                                           # [B] nearest anchor
     ar = torch.arange(len(near), device=near.device)
+    R_reach = reachable_targets(anchors, rotations, reach_deg)                        # [B, A, 3, 3]
+    R_reach[ar, near] = rotations                                                     # the nearest: exactly R*
     if symmetric:
         posed = torch.einsum("bmj,bakj->bamk", S, R) + t[:, :, None]                  # [B, A, M, 3]
-        c = _chamfer(posed, target[:, None].expand_as(posed))                        # [B, A]
-        per = c                                                                       # [B, A]
+        goal = torch.einsum("bmj,bakj->bamk", S, R_reach) + translations[:, None, None]   # [B, A, M, 3]
+        c = _chamfer(posed, target[:, None].expand_as(posed))                        # [B, A] vs the teacher pose
+        per = _chamfer(posed, goal)                                                   # [B, A] vs reachable goals
     else:
-        per = ((R - rotations[:, None]).pow(2).sum((2, 3))
-               + (t - translations[:, None]).pow(2).sum(2))                           # [B, A]
+        per = ((R - R_reach).pow(2).sum((2, 3)) + (t - translations[:, None]).pow(2).sum(2))   # [B, A]
     loss_pose = per[ar, near].mean()
     loss_reach = per.mean()
     reg = (out["quaternion_norm"] - 1.0).pow(2).mean()
