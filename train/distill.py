@@ -145,7 +145,6 @@ def distillation_loss(out: dict, shapes: torch.Tensor, rotations: torch.Tensor, 
     """
     S = shapes
     loss_shape = _chamfer(out["canonical_shape"], S).mean()
-    target = S @ rotations.transpose(1, 2) + translations[:, None]                    # [B, M, 3]
     R, t = out["hypothesis_rotations"], out["hypothesis_translations"]               # [B, A, 3, 3], [B, A, 3]
     tr = torch.einsum("aij,bij->ba", anchors, rotations)                              # [B, A] trace(Aᵀ R*) ∝ cos
     near = tr.argmax(dim=1)                                                           # [B] nearest anchor
@@ -155,7 +154,6 @@ def distillation_loss(out: dict, shapes: torch.Tensor, rotations: torch.Tensor, 
     if symmetric:
         posed = torch.einsum("bmj,bakj->bamk", S, R) + t[:, :, None]                  # [B, A, M, 3]
         goal = torch.einsum("bmj,bakj->bamk", S, R_reach) + translations[:, None, None]   # [B, A, M, 3]
-        c = _chamfer(posed, target[:, None].expand_as(posed))                        # [B, A] vs the teacher pose
         per = _chamfer(posed, goal)                                                   # [B, A] vs reachable goals
     else:
         per = ((R - R_reach).pow(2).sum((2, 3)) + (t - translations[:, None]).pow(2).sum(2))   # [B, A]
@@ -165,9 +163,11 @@ def distillation_loss(out: dict, shapes: torch.Tensor, rotations: torch.Tensor, 
     loss = loss_shape + loss_pose + reach_weight * loss_reach + quat_weight * reg
     parts = {"shape": loss_shape.item(), "pose": loss_pose.item(), "reach": loss_reach.item()}
     if select_weight > 0:
-        if symmetric:
-            cd = c.detach()
-            ok = cd <= select_tolerance * cd[ar, near][:, None] + 1e-9               # [B, A]
+        if symmetric:                                                                 # pose chamfer vs R* itself
+            with torch.no_grad():
+                target = S @ rotations.transpose(1, 2) + translations[:, None]        # [B, M, 3]
+                c = _chamfer(posed, target[:, None].expand_as(posed))                # [B, A]
+            ok = c <= select_tolerance * c[ar, near][:, None] + 1e-9                 # [B, A]
         else:
             cos = (torch.einsum("baij,bij->ba", R.detach(), rotations) - 1) / 2      # [B, A] cos of the angle to R*
             ok = cos >= math.cos(math.radians(select_deg))

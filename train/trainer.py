@@ -30,7 +30,7 @@ from .data import MODELNET_SCALE, category_symmetry, collate, default_data_root,
 from .inference import calibrate_model, predict_torch
 from .calibration import apply_calibration
 from .metrics import rotation_errors
-from .distill import distillation_loss
+from .distill import complete_clouds, distillation_loss, teacher_targets
 from .model import EquiPoseNet, chamfer_min_of_60_loss
 
 __all__ = ["TrainConfig", "train"]
@@ -209,7 +209,6 @@ def train(cfg: TrainConfig, resume: bool = False, log=print) -> pathlib.Path:
         val_inputs = validation_inputs(train_ds, val_ds, cfg)
     targets = None
     if cfg.teacher:
-        from .distill import complete_clouds, teacher_targets
         clouds = complete_clouds(cfg.data_root or str(default_data_root()), cfg.category, "train", cfg.train_limit)
         if len(clouds) <= int(train_ds.instance.max()):
             raise ConfigError(f"teacher: {len(clouds)} complete clouds for {int(train_ds.instance.max()) + 1} instances")
