@@ -21,6 +21,12 @@ Tables (all numpy, int64 where indices):
     ``VERTEX_PERMUTATION`` [60, 12]    ``VERTICES[VERTEX_PERMUTATION[g, v]] = A_g @ VERTICES[v]``.
     ``KERNEL_POINTS_24``   [24, 3]     the reference's ``kpsphere24`` kernel points (index 0 = centre), raw units.
     ``KERNEL_POINTS_13``   [13, 3]     centre + the 12 vertices (an icosahedrally symmetric kernel, E2PN-style).
+    ``VERTEX_CLASS``       [12, 12]    class of vertex u seen from vertex v: 0 same, 1 neighbour ring (dot 1/√5),
+                                       2 far ring (dot −1/√5), 3 antipode. Rotations preserve it (the quotient
+                                       features' kernels share weights within a class).
+    ``ROTATION_VERTEX_PAIR`` [60, 2]   ``VERTEX_PERMUTATION[g, (0, n0)]`` with n0 a neighbour of vertex 0: the ordered
+                                       adjacent vertex pair that rotation g carries (0, n0) to; unique per rotation,
+                                       so a pair of vertex features lifts back to the 60 rotations equivariantly.
 """
 from __future__ import annotations
 
@@ -31,7 +37,7 @@ from .geometry import matrix_to_quaternion, quaternion_to_matrix
 __all__ = [
     "NUM_ROTATIONS", "IDENTITY_INDEX", "ANCHORS", "ANCHOR_QUATERNIONS", "CAYLEY", "INVERSE", "INTRA_GENERATORS",
     "INTRA_NEIGHBOURS", "VERTICES", "VERTEX_PERMUTATION", "KERNEL_POINTS_24", "KERNEL_POINTS_13", "kernel_points",
-    "nearest_anchor", "rotation_index",
+    "VERTEX_CLASS", "ROTATION_VERTEX_PAIR", "nearest_anchor", "rotation_index",
 ]
 
 NUM_ROTATIONS = 60
@@ -129,6 +135,17 @@ def _build_vertices():
 
 
 VERTICES, VERTEX_PERMUTATION = _build_vertices()
+
+def _build_vertex_tables():
+    dots = VERTICES @ VERTICES.T                                      # [12, 12] cosines: 1, ±1/√5, −1
+    cls = np.select([dots > 0.99, dots > 0.0, dots > -0.99], [0, 1, 2], 3).astype(np.int64)
+    n0 = int(np.flatnonzero(cls[0] == 1)[0])
+    pair = VERTEX_PERMUTATION[:, [0, n0]]                             # [60, 2]
+    assert len({tuple(p) for p in pair}) == NUM_ROTATIONS             # the action on adjacent pairs is free
+    return cls, pair.astype(np.int64)
+
+
+VERTEX_CLASS, ROTATION_VERTEX_PAIR = _build_vertex_tables()
 
 KERNEL_POINTS_24 = np.array(_KERNEL_24.split(), dtype=np.float64).reshape(24, 3)
 KERNEL_POINTS_13 = np.concatenate([np.zeros((1, 3)), VERTICES], 0)

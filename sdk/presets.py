@@ -48,6 +48,7 @@ class ModelConfig:
     decoder_hidden: tuple = (256, 256)
     num_canonical_points: int = 1024            # M, points of the canonical shape
     theta_max_deg: float = 36.0                 # partial mode: residual quaternion qw >= cos(theta_max)
+    quotient: bool = False                      # backbone on the 12 vertex descriptors (E2PN-style), lifted at the heads
     description: str = ""
     layers: tuple = field(default=(), compare=False)
 
@@ -55,6 +56,8 @@ class ModelConfig:
         n = len(self.channels)
         if not (len(self.strides) == len(self.radii) == len(self.neighbours) == n):
             raise ValueError(f"preset {self.name!r}: channels/strides/radii/neighbours must have equal length")
+        if self.quotient and self.kernel_points != 13:
+            raise ValueError(f"preset {self.name!r}: quotient (vertex) features need the 13-point symmetric kernel")
         layers, c_in, p = [], 1, self.num_points
         for c, s, r, k in zip(self.channels, self.strides, self.radii, self.neighbours):
             p_out = math.ceil(p / s)
@@ -160,6 +163,30 @@ register_preset(ModelConfig(
 ))
 
 
+# Quotient candidates (issue 6, session 4): the backbone on 12 vertex descriptors instead of 60 rotation copies.
+register_preset(ModelConfig(
+    name="edge-q",
+    num_points=256,
+    channels=(16, 16, 32, 32),
+    strides=(2, 1, 2, 1),
+    radii=(0.16, 0.2263, 0.2263, 0.32),
+    neighbours=(16, 12, 16, 12),
+    kernel_points=13,
+    head_channels=64,
+    latent=64,
+    decoder_hidden=(128, 128),
+    num_canonical_points=256,
+    quotient=True,
+    description="Edge candidate Q: edge-a's layout on 12 vertex descriptors (E2PN-style quotient), lifted at the heads.",
+))
+
+register_preset(PRESETS["edge-q"].replace(
+    name="edge-qw",
+    channels=(32, 32, 64, 64),
+    description="Edge candidate QW: edge-q with doubled channel widths (32→64).",
+))
+
+
 # The chosen edge preset (docs/benchmarks.md): edge-a's configuration — ≤ 20 ms end-to-end per object on 2 cores.
 register_preset(PRESETS["edge-a"].replace(
     name="edge",
@@ -189,6 +216,8 @@ A_ROT, INTRA_K = 60, 12
 def layer_costs(cfg: ModelConfig, partial: bool = True) -> list:
     """Rows ``{"name", "params", "macs"}`` for every layer and head (multiply-accumulates of matmul-like work)."""
     cfg = get_preset(cfg)
+    if cfg.quotient:
+        return _quotient_layer_costs(cfg, partial)
     K, rows = cfg.kernel_points, []
     for i, L in enumerate(cfg.layers):
         P2, nn = L.points_out, L.neighbours
@@ -209,12 +238,42 @@ def layer_costs(cfg: ModelConfig, partial: bool = True) -> list:
     rows.append({"name": "pose head", "params": mlp_p + H * 7 + 7, "macs": mlp_m + A_ROT * H * 7})
     rows.append({"name": "invariant head", "params": mlp_p + (H + 3) * Z + Z + 2 * Z,
                  "macs": mlp_m + P * A_ROT * (H + 3) * Z})
+    return rows + _tail_costs(cfg, partial)
+
+
+def _tail_costs(cfg: ModelConfig, partial: bool) -> list:
+    """Decoder and hypothesis-score rows (shared by both backbones)."""
     dims = (cfg.latent,) + tuple(cfg.decoder_hidden) + (3 * cfg.num_canonical_points,)
     dec_p = sum(a * b + b for a, b in zip(dims[:-1], dims[1:]))
-    rows.append({"name": "decoder", "params": dec_p, "macs": sum(a * b for a, b in zip(dims[:-1], dims[1:]))})
     score = A_ROT * cfg.num_points * cfg.num_canonical_points * 3 * (1 if partial else 2)
-    rows.append({"name": "hypothesis scores", "params": 0, "macs": score})
-    return rows
+    return [{"name": "decoder", "params": dec_p, "macs": sum(a * b for a, b in zip(dims[:-1], dims[1:]))},
+            {"name": "hypothesis scores", "params": 0, "macs": score}]
+
+
+def _quotient_layer_costs(cfg: ModelConfig, partial: bool) -> list:
+    """Cost rows of a quotient (12-vertex) backbone and its heads (``equipose.train.quotient``)."""
+    V, KC, VC, K = 12, 5, 4, 13
+    rows = []
+    for i, L in enumerate(cfg.layers):
+        P2, nn = L.points_out, L.neighbours
+        params = (KC * L.c_in * L.c_out + L.c_out) + (L.c_out * VC * L.c_out + L.c_out) \
+            + ((L.c_in * L.c_out + L.c_out) if i > 0 else 0)
+        macs = (P2 * nn * K * 5                         # hat weights
+                + P2 * K * nn * V * L.c_in               # neighbour aggregation
+                + P2 * V * KC * L.c_in * L.c_out         # inter dense matmul
+                + P2 * V * L.c_out * VC * L.c_out        # intra dense matmul
+                + P2 * V * V * VC * L.c_out              # intra class sum
+                + (P2 * V * L.c_in * L.c_out if i > 0 else 0))
+        rows.append({"name": f"block{i // 2}.layer{i % 2} ({L.c_in}→{L.c_out}, {L.points_in}→{P2} pts, nn {nn}, 12 vertices)",
+                     "params": params, "macs": macs})
+    C, H, P, Z = cfg.channels[-1], cfg.head_channels, cfg.feature_points, cfg.latent
+    mlp_p = C * H + H + H * H + H + 4 * H
+    mlp_m = P * V * (C * H + H * H)
+    rows.append({"name": "pose head", "params": mlp_p + 2 * H * H + H + H * 7 + 7,
+                 "macs": mlp_m + A_ROT * (2 * H * H + H * 7)})
+    rows.append({"name": "invariant head", "params": mlp_p + (H + 2) * Z + Z + 2 * Z,
+                 "macs": mlp_m + P * V * (H + 2) * Z})
+    return rows + _tail_costs(cfg, partial)
 
 
 def total_macs(cfg, partial: bool = True) -> int:

@@ -3,7 +3,8 @@
 Convention:
     A *model function* maps points [B, N, 3] float32 (model units) to a dict of numpy arrays with the ONNX contract
     names (``canonical_shape`` [B, M, 3], ``hypothesis_rotations`` [B, 60, 3, 3], ``hypothesis_translations``
-    [B, 60, 3], ``hypothesis_scores`` [B, 60]) and optionally ``features`` [B, P, 60, C] (rotation axis 2).
+    [B, 60, 3], ``hypothesis_scores`` [B, 60]) and optionally ``features`` [B, P, 60, C] (rotation axis 2) or
+    [B, P, 12, C] (vertex descriptors of a quotient backbone; re-indexed by ``VERTEX_PERMUTATION``).
     Rotating the input by group element g (about the origin) must give: the same canonical shape; hypothesis j moved
     to index ``CAYLEY[g, j]`` as (g·R_j, g·t_j); scores and features re-indexed the same way. Translating the input
     by v must give the same canonical shape and every t_j shifted by v.
@@ -49,8 +50,9 @@ def equivariance_errors(fn: ModelFn, points: np.ndarray, rotations: Iterable[int
         upd("hypothesis_translations",
             np.abs(out["hypothesis_translations"][:, perm] - base["hypothesis_translations"] @ Rg.T).max())
         upd("hypothesis_scores", np.abs(out["hypothesis_scores"][:, perm] - base["hypothesis_scores"]).max())
-        if "features" in base and "features" in out:
-            upd("features", np.abs(out["features"][:, :, perm] - base["features"]).max())
+        if "features" in base and "features" in out:                           # 60 rotations or 12 vertex descriptors
+            fperm = perm if base["features"].shape[2] == icosahedral.NUM_ROTATIONS else icosahedral.VERTEX_PERMUTATION[g]
+            upd("features", np.abs(out["features"][:, :, fperm] - base["features"]).max())
     v = np.array([0.3, -0.2, 0.5], np.float32) if translation is None else np.asarray(translation, np.float32)
     out = fn(points + v)
     errs["translation_shape"] = float(np.abs(out["canonical_shape"] - base["canonical_shape"]).max())

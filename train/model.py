@@ -24,6 +24,7 @@ from equipose import icosahedral
 from equipose.presets import ModelConfig, get_preset
 
 from .layers import LEAKY_SLOPE, SeparableSO3Block
+from .quotient import QuotientBlock, lift_pairs
 
 __all__ = ["EquiPoseNet", "quaternion_to_matrix", "squared_distances", "hypothesis_scores", "OUTPUT_NAMES"]
 
@@ -114,6 +115,46 @@ class InvariantHead(nn.Module):
         return x.amax(dim=1)                                               # [B, L]
 
 
+class QuotientPoseHead(nn.Module):
+    """Pose branch on vertex descriptors: MLP → max over points → lift vertex pairs to the 60 rotations → MLP.
+
+    feats [B, P, 12, C] → q [B, A, 4], t [B, A, 3] (the same contract as ``PoseHead``).
+    """
+
+    def __init__(self, c: int, h: int):
+        super().__init__()
+        self.mlp = nn.Sequential(_mlp_bn(c, h), _mlp_bn(h, h))
+        self.pair = nn.Linear(2 * h, h)
+        self.out = nn.Linear(h, 7)
+
+    def forward(self, feats):
+        x = _apply_rowwise(self.mlp, feats).amax(dim=1)                    # [B, 12, H]  max over points
+        x = F.leaky_relu(self.pair(lift_pairs(x)), LEAKY_SLOPE)            # [B, A, H]
+        y = self.out(x)                                                    # [B, A, 7]
+        return y[..., :4], y[..., 4:]
+
+
+class QuotientInvariantHead(nn.Module):
+    """Invariant shape branch on vertex descriptors: features + (projection on v, squared distance from the v axis)
+    → max over points → max over vertices → z. xyz [B, P, 3], feats [B, P, 12, C] → [B, latent]."""
+
+    def __init__(self, c: int, h: int, latent: int):
+        super().__init__()
+        self.mlp = nn.Sequential(_mlp_bn(c, h), _mlp_bn(h, h))
+        self.point = nn.Linear(h + 2, latent)
+        self.norm = nn.BatchNorm1d(latent)
+        self.register_buffer("vertices_t", torch.tensor(icosahedral.VERTICES.T, dtype=torch.float32), persistent=False)
+
+    def forward(self, xyz, feats):
+        h = _apply_rowwise(self.mlp, feats)                                # [B, P, 12, H]
+        local = xyz - xyz.mean(dim=1, keepdim=True)                        # [B, P, 3]
+        proj = local @ self.vertices_t                                     # [B, P, 12]  x·v
+        perp = ((local * local).sum(-1, keepdim=True) - proj * proj).clamp_min(0.0)  # [B, P, 12]  ‖x‖² − (x·v)²
+        x = self.point(torch.cat([h, proj.unsqueeze(-1), perp.unsqueeze(-1)], dim=-1)).amax(dim=1)  # [B, 12, L]
+        x = F.relu(_apply_rowwise(self.norm, x))                           # [B, 12, L]
+        return x.amax(dim=1)                                               # [B, L]
+
+
 class ShapeDecoder(nn.Module):
     """z [B, L] → canonical shape [B, M, 3] in (−0.5, 0.5)³ (sigmoid − 0.5)."""
 
@@ -138,11 +179,16 @@ class EquiPoseNet(nn.Module):
         super().__init__()
         cfg = get_preset(config)
         self.config, self.partial = cfg, bool(partial)
-        self.blocks = nn.ModuleList(SeparableSO3Block(L, cfg.kernel_points, lifting=(i == 0))
-                                    for i, L in enumerate(cfg.layers))
         c = cfg.channels[-1]
-        self.pose_head = PoseHead(c, cfg.head_channels)
-        self.inv_head = InvariantHead(c, cfg.head_channels, cfg.latent)
+        if cfg.quotient:                                                   # 12-vertex descriptors (train/quotient.py)
+            self.blocks = nn.ModuleList(QuotientBlock(L, lifting=(i == 0)) for i, L in enumerate(cfg.layers))
+            self.pose_head = QuotientPoseHead(c, cfg.head_channels)
+            self.inv_head = QuotientInvariantHead(c, cfg.head_channels, cfg.latent)
+        else:
+            self.blocks = nn.ModuleList(SeparableSO3Block(L, cfg.kernel_points, lifting=(i == 0))
+                                        for i, L in enumerate(cfg.layers))
+            self.pose_head = PoseHead(c, cfg.head_channels)
+            self.inv_head = InvariantHead(c, cfg.head_channels, cfg.latent)
         self.decoder = ShapeDecoder(cfg.latent, cfg.decoder_hidden, cfg.num_canonical_points)
         self.register_buffer("anchors", torch.tensor(icosahedral.ANCHORS, dtype=torch.float32),   # [A, 3, 3]
                              persistent=False)
@@ -153,7 +199,7 @@ class EquiPoseNet(nn.Module):
         return self.config.num_points
 
     def backbone(self, centred: torch.Tensor) -> tuple:
-        """centred [B, N, 3] → (xyz [B, P, 3], feats [B, P, A, C])."""
+        """centred [B, N, 3] → (xyz [B, P, 3], feats [B, P, A, C]; [B, P, 12, C] for a quotient backbone)."""
         xyz, feats = centred, None
         for blk in self.blocks:
             xyz, feats = blk(xyz, feats)
