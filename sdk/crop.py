@@ -335,7 +335,7 @@ def crop_points(depth, K, *, box=None, mask=None, depth_unit="mm", image_size=No
                 max_depth: float = 10.0, max_points: int = 4096, reject_background: bool | None = None,
                 outlier_k: int = 8, outlier_std: float = 2.0, min_points: int = MIN_POINTS,
                 check_plausible: bool = True, remove_support_plane: bool | None = None, support_plane=None,
-                plane_height: float = 0.012) -> CropResult:
+                plane_height: float = 0.012, prevalidated: bool = False) -> CropResult:
     """Depth frame + box/mask → cleaned object points in metres.
 
     Convention: ``depth`` [H, W] in ``depth_unit``; ``K`` [3, 3] for ``image_size`` (W, H) or the frame itself;
@@ -350,9 +350,17 @@ def crop_points(depth, K, *, box=None, mask=None, depth_unit="mm", image_size=No
     without a mask) → statistical outlier removal (``outlier_std``; 0 disables): on the pixel grid with its 8
     neighbours (``organized_outlier_mask``) for the default ``outlier_k`` = 8, else k-d tree with k = ``outlier_k``.
     Raises ``DepthDtypeError``, ``DepthUnitError``, ``EmptyDepthError``, ``IntrinsicsError``, ``RegionError``,
-    ``TooFewPointsError``. ``check_plausible=False`` skips the unit plausibility check (already-validated frames).
+    ``TooFewPointsError``. ``check_plausible=False`` skips the unit plausibility check (already-validated frames);
+    ``prevalidated=True`` takes ``depth`` as the float32 metres that ``depth_to_metres`` returned for this frame and
+    skips conversion and validation altogether (``PoseEstimator`` validates each frame once for all its objects).
     """
-    d = depth_to_metres(depth, depth_unit, check_plausible=check_plausible)     # [H, W] float32 m
+    if prevalidated:
+        d = depth                                                               # [H, W] float32 m, 0 = invalid
+        if not (isinstance(d, np.ndarray) and d.dtype == np.float32 and d.ndim == 2):
+            raise DepthDtypeError("prevalidated=True needs the [H, W] float32 metres from depth_to_metres, got "
+                                  f"{getattr(d, 'dtype', type(d))} {getattr(d, 'shape', '')}")
+    else:
+        d = depth_to_metres(depth, depth_unit, check_plausible=check_plausible) # [H, W] float32 m
     H, W = d.shape
     Kf = check_intrinsics(K, (H, W), image_size)                                # [3, 3]
     y0, x0, y1, x1 = 0, 0, H, W
@@ -375,29 +383,36 @@ def crop_points(depth, K, *, box=None, mask=None, depth_unit="mm", image_size=No
     if diag["gated"] < min_points:
         raise TooFewPointsError(f"{diag['gated']} valid pixels within {min_depth}–{max_depth} m in the region (need "
                                 f"≥ {min_points}); enlarge the box/mask or change min_depth/max_depth")
-    rows, cols = np.nonzero(valid)                                              # [P], [P] in the window
-    rows, cols = rows + y0, cols + x0                                           # frame pixels
     if remove_support_plane is None:
         remove_support_plane = box is not None and mask is None
     if remove_support_plane:
         plane = support_plane if support_plane is not None else find_support_plane(d, Kf)
         if plane is not None:
             n, off = plane
-            z = d[rows, cols]                                                   # [P] float32
-            h = ((cols - Kf[0, 2]) * z / Kf[0, 0] * n[0] + (rows - Kf[1, 2]) * z / Kf[1, 1] * n[1]
-                 + z * n[2] + off)                                              # [P] height above the plane, m
-            above = h > plane_height
-            if above.sum() >= min_points:
-                rows, cols = rows[above], cols[above]
-                diag["above_plane"] = int(above.sum())
+            # height above the plane of every window pixel: z · (n · ray(row, col)) + off, the ray term separable
+            cx = (np.arange(x0, x1, dtype=np.float32) - Kf[0, 2]) / Kf[0, 0] * n[0]     # [w]
+            ry = (np.arange(y0, y1, dtype=np.float32) - Kf[1, 2]) / Kf[1, 1] * n[1] + n[2]  # [h]
+            h = win * (ry[:, None] + cx[None, :]).astype(np.float32) + np.float32(off)  # [h, w] m
+            above = valid & (h > plane_height)                                  # [h, w]
+            n_above = int(np.count_nonzero(above))
+            if n_above >= min_points:
+                valid = above
+                diag["above_plane"] = n_above
     s = 1                                                                       # grid pitch of the kept pixels
-    if len(rows) > max_points:                                                  # regular grid, deterministic
-        s = int(math.ceil(math.sqrt(len(rows) / max_points)))
-        keep = ((rows - y0) % s == 0) & ((cols - x0) % s == 0)
-        if keep.sum() < min_points:                                             # pathological sparse layouts
+    n_valid = int(np.count_nonzero(valid))
+    if n_valid > max_points:                                                    # regular grid, deterministic
+        s = int(math.ceil(math.sqrt(n_valid / max_points)))
+        if np.count_nonzero(valid[::s, ::s]) < min_points:                      # pathological sparse layouts
+            rows, cols = np.nonzero(valid)
             keep = np.zeros(len(rows), bool); keep[:: int(math.ceil(len(rows) / max_points))] = True
+            rows, cols = rows[keep], cols[keep]
             s = 0                                                               # not a grid any more
-        rows, cols = rows[keep], cols[keep]
+        else:
+            rows, cols = np.nonzero(valid[::s, ::s])                            # [P] on the lattice
+            rows, cols = rows * s, cols * s
+    else:
+        rows, cols = np.nonzero(valid)                                          # [P], [P] in the window
+    rows, cols = rows + y0, cols + x0                                           # frame pixels
     diag["subsampled"] = int(len(rows))
     z = d[rows, cols].astype(np.float64)                                        # [P]
     x = (cols - Kf[0, 2] - Kf[0, 1] * (rows - Kf[1, 2]) / Kf[1, 1]) * z / Kf[0, 0]

@@ -282,7 +282,7 @@ class PoseEstimator:
             try:
                 t1 = time.perf_counter()
                 c = self.crop(depth_m, Kf, box=reg.get("box"), mask=reg.get("mask"), depth_unit="m",
-                              check_plausible=False, **crop_options)
+                              prevalidated=True, **crop_options)
                 t2 = time.perf_counter()
                 prep = _crop.prepare_points(c.points, self.num_points, self.scale)
                 t3 = time.perf_counter()

@@ -67,25 +67,28 @@ def backproject(depth_m: np.ndarray, K: np.ndarray, mask: np.ndarray | None = No
 def farthest_point_order(points: np.ndarray, n: int, start: int = 0) -> np.ndarray:
     """Greedy farthest-point sampling: indices [n] of ``points`` [P, 3], nested (its first k are FPS(k)).
 
-    When ``n > P`` the order wraps around (indices repeat), so the model still receives N points. Per-coordinate
-    contiguous float32 arrays and in-place ufuncs keep every step to four passes over P floats.
+    When ``n > P`` the order wraps around (indices repeat), so the model still receives N points. Each step is one
+    float32 mat-vec of augmented rows ``[x, ‖x‖², 1] · [−2y, 1, ‖y‖²] = ‖x − y‖²`` (points centred first, which keeps
+    the expansion exact to float32 precision), one in-place minimum and one argmax.
     """
-    p = np.asarray(points, dtype=np.float32)
+    p = np.asarray(points, dtype=np.float64)
     P = len(p)
     if P == 0:
         raise ValueError("farthest_point_order: no points")
-    x, y, z = (np.ascontiguousarray(p[:, k]) for k in range(3))                 # [P] each
+    p = (p - p.mean(0)).astype(np.float32)                                      # [P, 3] centred
+    sq = np.einsum("ij,ij->i", p, p)[:, None]                                   # [P, 1]
+    one = np.ones((P, 1), np.float32)
+    rows = np.concatenate([p, sq, one], 1)                                      # [P, 5]
+    cols = np.concatenate([-2.0 * p, one, sq], 1)                               # [P, 5]  (row j: the query y_j)
     m = min(int(n), P)
     idx = np.empty(m, dtype=np.int64)
     idx[0] = start
-    d = (x - x[start]) ** 2 + (y - y[start]) ** 2 + (z - z[start]) ** 2         # [P] squared distance to the set
-    t, u = np.empty_like(d), np.empty_like(d)
+    d = rows @ cols[start]                                                      # [P] squared distance to the set
+    t = np.empty_like(d)
     for i in range(1, m):
         j = int(d.argmax())
         idx[i] = j
-        np.subtract(x, x[j], out=t); np.multiply(t, t, out=t)
-        np.subtract(y, y[j], out=u); np.multiply(u, u, out=u); t += u
-        np.subtract(z, z[j], out=u); np.multiply(u, u, out=u); t += u
+        np.matmul(rows, cols[j], out=t)
         np.minimum(d, t, out=d)
     if n > P:
         idx = np.resize(idx, int(n))
