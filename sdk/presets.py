@@ -49,6 +49,7 @@ class ModelConfig:
     num_canonical_points: int = 1024            # M, points of the canonical shape
     theta_max_deg: float = 36.0                 # partial mode: residual quaternion qw >= cos(theta_max)
     quotient: bool = False                      # backbone on the 12 vertex descriptors (E2PN-style), lifted at the heads
+    score_points: int = 0                       # hypothesis scores from the first K (FPS) input points; 0 = all N
     description: str = ""
     layers: tuple = field(default=(), compare=False)
 
@@ -245,7 +246,8 @@ def _tail_costs(cfg: ModelConfig, partial: bool) -> list:
     """Decoder and hypothesis-score rows (shared by both backbones)."""
     dims = (cfg.latent,) + tuple(cfg.decoder_hidden) + (3 * cfg.num_canonical_points,)
     dec_p = sum(a * b + b for a, b in zip(dims[:-1], dims[1:]))
-    score = A_ROT * cfg.num_points * cfg.num_canonical_points * 3 * (1 if partial else 2)
+    n_score = cfg.score_points if 0 < cfg.score_points < cfg.num_points else cfg.num_points
+    score = A_ROT * n_score * cfg.num_canonical_points * 3 * (1 if partial else 2)
     return [{"name": "decoder", "params": dec_p, "macs": sum(a * b for a, b in zip(dims[:-1], dims[1:]))},
             {"name": "hypothesis scores", "params": 0, "macs": score}]
 

@@ -50,19 +50,23 @@ def squared_distances(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
 
 
 def hypothesis_scores(points: torch.Tensor, shape: torch.Tensor, R: torch.Tensor, t: torch.Tensor,
-                      bidirectional: bool) -> torch.Tensor:
+                      bidirectional: bool, score_points: int = 0) -> torch.Tensor:
     """Chamfer (squared distances) between each posed reconstruction R_j·Z + t_j and the input.
 
     points [B, N, 3]; shape Z [B, M, 3]; R [B, J, 3, 3]; t [B, J, 3] → [B, J].
     Computed in the hypothesis frame, R_jᵀ(x − t_j) vs Z (distances are rigid-invariant), so Z is posed 0 times.
     ``bidirectional=False``: mean over input points of the nearest reconstruction point (partial input);
     ``True`` adds the mean over reconstruction points of the nearest input point (complete input).
+    ``score_points`` > 0 scores with the first ``score_points`` input points only (FPS-ordered input: a uniform subset).
     """
-    local = (points.unsqueeze(1) - t.unsqueeze(2)) @ R                 # [B, J, N, 3]  = rows of R_jᵀ(x − t_j)
+    x = points[:, :score_points] if 0 < score_points < points.shape[1] else points     # [B, N', 3]
+    Rt = R.transpose(-1, -2)                                           # [B, J, 3, 3]
+    # columns of R_jᵀ(x − t_j), channel-first so the broadcast subtraction runs along the contiguous point axis
+    local = Rt @ x.transpose(1, 2).unsqueeze(1) - Rt @ t.unsqueeze(-1)  # [B, J, 3, N']
     # all squared distances in one MatMul: [x, ‖x‖², 1] · [−2z, 1, ‖z‖²]; clamp after the min (same result)
-    a = torch.cat([local, (local * local).sum(-1, keepdim=True), torch.ones_like(local[..., :1])], -1)  # [B, J, N, 5]
+    a = torch.cat([local, (local * local).sum(2, keepdim=True), torch.ones_like(local[:, :, :1])], 2)  # [B, J, 5, N']
     b = torch.cat([-2.0 * shape, torch.ones_like(shape[..., :1]), (shape * shape).sum(-1, keepdim=True)], -1)  # [B, M, 5]
-    d2 = a @ b.transpose(1, 2).unsqueeze(1)                            # [B, J, N, M]
+    d2 = a.transpose(2, 3) @ b.transpose(1, 2).unsqueeze(1)            # [B, J, N', M]
     score = d2.min(dim=3).values.clamp_min(0.0).mean(dim=2)            # [B, J]
     if bidirectional:
         score = score + d2.min(dim=2).values.clamp_min(0.0).mean(dim=2)
@@ -227,7 +231,8 @@ class EquiPoseNet(nn.Module):
             t = t0.expand(-1, A, -1) + 0.0 * t_raw                              # [B, A, 3]
         z = self.inv_head(xyz, feats)                                           # [B, L]
         shape = self.decoder(z)                                                 # [B, M, 3]
-        scores = hypothesis_scores(points, shape, R, t, bidirectional=not self.partial)  # [B, A]
+        scores = hypothesis_scores(points, shape, R, t, bidirectional=not self.partial,
+                                   score_points=self.config.score_points)                 # [B, A]
         out = {"canonical_shape": shape, "hypothesis_rotations": R, "hypothesis_translations": t,
                "hypothesis_scores": scores}
         if return_aux:
