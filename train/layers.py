@@ -20,29 +20,44 @@ from torch.nn import functional as F
 from equipose import icosahedral
 from equipose.presets import LayerSpec
 
-__all__ = ["knn_gather_index", "gather_rows", "InterSO3Conv", "IntraSO3Conv", "SeparableSO3Block", "instance_norm",
+__all__ = ["knn_indices", "flat_rows", "shared_neighbourhoods", "gather_rows", "InterSO3Conv", "IntraSO3Conv", "SeparableSO3Block", "instance_norm",
            "LEAKY_SLOPE", "count_parameters"]
 
 LEAKY_SLOPE = 0.01
 A = icosahedral.NUM_ROTATIONS
 
 
-def knn_gather_index(support: torch.Tensor, centres: torch.Tensor, k: int) -> torch.Tensor:
-    """Flat row indices of the ``k`` nearest support points of each centre.
+def knn_indices(support: torch.Tensor, centres: torch.Tensor, k: int) -> torch.Tensor:
+    """Indices [B, P2, k] (into ``support``'s points, nearest first) of the ``k`` nearest support points of each centre.
 
-    Args:
-        support: [B, P1, 3]; centres: [B, P2, 3] (same frame).
-    Returns:
-        int64 [B·P2·k] indices into ``support.reshape(B·P1, ...)`` (batch offset included), nearest first.
+    support [B, P1, 3]; centres [B, P2, 3] (same frame).
     """
-    B, P1, _ = support.shape
     # rank by ‖s‖² − 2 c·s (‖c‖² is constant per row): one MatMul of augmented vectors [c, 1] · [−2s, ‖s‖²]
     c_aug = torch.cat([centres, torch.ones_like(centres[..., :1])], dim=-1)            # [B, P2, 4]
     s_aug = torch.cat([-2.0 * support, (support * support).sum(-1, keepdim=True)], dim=-1)  # [B, P1, 4]
     rank = c_aug @ s_aug.transpose(1, 2)                                               # [B, P2, P1]
-    idx = torch.topk(rank, k, dim=-1, largest=False, sorted=True).indices              # [B, P2, k]
-    offset = (torch.arange(B, device=support.device) * P1).view(B, 1, 1)
-    return (idx + offset).reshape(-1)                                   # [B·P2·k]
+    return torch.topk(rank, k, dim=-1, largest=False, sorted=True).indices             # [B, P2, k]
+
+
+def flat_rows(idx: torch.Tensor, p1: int) -> torch.Tensor:
+    """Per-sample indices [B, P2, k] into P1 points → flat int64 [B·P2·k] rows of a [B·P1, ...] view."""
+    offset = (torch.arange(idx.shape[0], device=idx.device) * p1).view(-1, 1, 1)
+    return (idx + offset).reshape(-1)
+
+
+def shared_neighbourhoods(xyz: torch.Tensor, layers) -> list:
+    """Neighbour indices [B, P2, nn] for every layer, one TopK per distinct support size.
+
+    With FPS-ordered input every layer's support is the prefix ``xyz[:, :points_in]`` and its centres the prefix
+    ``[:, :points_out]``, so layers sharing a support share one kNN over the most centres and neighbours any of them
+    needs (sorted, so a layer's neighbourhood is a prefix of the shared one). xyz [B, N, 3].
+    """
+    need: dict = {}
+    for L in layers:
+        p2, k = need.get(L.points_in, (0, 0))
+        need[L.points_in] = (max(p2, L.points_out), max(k, L.neighbours))
+    knn = {p1: knn_indices(xyz[:, :p1], xyz[:, :p2], k) for p1, (p2, k) in need.items()}
+    return [knn[L.points_in][:, :L.points_out, :L.neighbours] for L in layers]
 
 
 def gather_rows(x: torch.Tensor, flat_index: torch.Tensor) -> torch.Tensor:
@@ -93,13 +108,14 @@ class InterSO3Conv(nn.Module):
         nn.init.xavier_normal_(self.weight.view(kernel_points, spec.c_in, spec.c_out).permute(2, 1, 0),
                                gain=nn.init.calculate_gain("relu"))
 
-    def forward(self, xyz: torch.Tensor, feats: torch.Tensor | None) -> torch.Tensor:
-        """xyz [B, P1, 3], feats [B, P1, A, Cin] or None (constant ones: the lifting layer) → [B, P2, A, Cout]."""
+    def forward(self, xyz: torch.Tensor, feats: torch.Tensor | None, knn: torch.Tensor | None = None) -> torch.Tensor:
+        """xyz [B, P1, 3], feats [B, P1, A, Cin] or None (constant ones: the lifting layer) → [B, P2, A, Cout].
+        ``knn`` [B, P2, nn]: precomputed neighbour indices (``shared_neighbourhoods``), else computed here."""
         s, K = self.spec, self.k
         B, P1, _ = xyz.shape
         P2, nn_ = s.points_out, s.neighbours
         centres = xyz[:, :P2]                                                          # [B, P2, 3]
-        flat = knn_gather_index(xyz, centres, nn_)                                     # [B·P2·nn]
+        flat = flat_rows(knn if knn is not None else knn_indices(xyz, centres, nn_), P1)  # [B·P2·nn]
         rel = gather_rows(xyz, flat).view(B, P2, nn_, 3) - centres.unsqueeze(2)        # [B, P2, nn, 3]
         rel_aug = torch.cat([rel, (rel * rel).sum(-1, keepdim=True), torch.ones_like(rel[..., :1])], -1)  # [B, P2, nn, 5]
         w = F.relu(self.kernel_aug @ rel_aug.transpose(-1, -2))                       # [B, P2, A·K | K, nn]
@@ -151,10 +167,10 @@ class SeparableSO3Block(nn.Module):
         self.intra = IntraSO3Conv(spec.c_out, spec.c_out)
         self.skip = None if lifting else nn.Linear(spec.c_in, spec.c_out)  # lifting input is constant: no skip
 
-    def forward(self, xyz: torch.Tensor, feats: torch.Tensor | None) -> tuple:
+    def forward(self, xyz: torch.Tensor, feats: torch.Tensor | None, knn: torch.Tensor | None = None) -> tuple:
         """xyz [B, P1, 3], feats [B, P1, A, Cin] | None → (xyz [B, P2, 3], feats [B, P2, A, Cout])."""
         P2 = self.spec.points_out
-        x = F.leaky_relu(instance_norm(self.inter(xyz, feats)), LEAKY_SLOPE)
+        x = F.leaky_relu(instance_norm(self.inter(xyz, feats, knn)), LEAKY_SLOPE)
         x = F.leaky_relu(instance_norm(self.intra(x)), LEAKY_SLOPE)
         if self.skip is not None:
             x = x + F.leaky_relu(instance_norm(self.skip(feats[:, :P2])), LEAKY_SLOPE)

@@ -23,7 +23,7 @@ from torch.nn import functional as F
 from equipose import icosahedral
 from equipose.presets import ModelConfig, get_preset
 
-from .layers import LEAKY_SLOPE, SeparableSO3Block
+from .layers import LEAKY_SLOPE, SeparableSO3Block, shared_neighbourhoods
 from .quotient import QuotientBlock, lift_pairs
 
 __all__ = ["EquiPoseNet", "quaternion_to_matrix", "squared_distances", "hypothesis_scores", "OUTPUT_NAMES"]
@@ -205,8 +205,9 @@ class EquiPoseNet(nn.Module):
     def backbone(self, centred: torch.Tensor) -> tuple:
         """centred [B, N, 3] → (xyz [B, P, 3], feats [B, P, A, C]; [B, P, 12, C] for a quotient backbone)."""
         xyz, feats = centred, None
-        for blk in self.blocks:
-            xyz, feats = blk(xyz, feats)
+        knn = shared_neighbourhoods(centred, self.config.layers)                # one TopK per support size
+        for blk, nb in zip(self.blocks, knn):
+            xyz, feats = blk(xyz, feats, nb)
         return xyz, feats
 
     def residual_quaternion(self, q_raw: torch.Tensor) -> torch.Tensor:

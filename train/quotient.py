@@ -25,7 +25,7 @@ from torch.nn import functional as F
 from equipose import icosahedral
 from equipose.presets import LayerSpec
 
-from .layers import LEAKY_SLOPE, gather_rows, instance_norm, knn_gather_index
+from .layers import LEAKY_SLOPE, flat_rows, gather_rows, instance_norm, knn_indices
 
 __all__ = ["QuotientInterConv", "QuotientIntraConv", "QuotientBlock", "lift_pairs", "V", "KERNEL_CLASSES",
            "VERTEX_CLASSES"]
@@ -74,13 +74,14 @@ class QuotientInterConv(nn.Module):
         nn.init.xavier_normal_(self.weight.view(KERNEL_CLASSES, spec.c_in, spec.c_out).permute(2, 1, 0),
                                gain=nn.init.calculate_gain("relu"))
 
-    def forward(self, xyz: torch.Tensor, feats: torch.Tensor | None) -> torch.Tensor:
-        """xyz [B, P1, 3], feats [B, P1, V, Cin] or None (constant ones: the lifting layer) → [B, P2, V, Cout]."""
+    def forward(self, xyz: torch.Tensor, feats: torch.Tensor | None, knn: torch.Tensor | None = None) -> torch.Tensor:
+        """xyz [B, P1, 3], feats [B, P1, V, Cin] or None (constant ones: the lifting layer) → [B, P2, V, Cout].
+        ``knn`` [B, P2, nn]: precomputed neighbour indices (``layers.shared_neighbourhoods``), else computed here."""
         s = self.spec
         B, P1, _ = xyz.shape
         P2, nn_ = s.points_out, s.neighbours
         centres = xyz[:, :P2]                                                          # [B, P2, 3]
-        flat = knn_gather_index(xyz, centres, nn_)                                     # [B·P2·nn]
+        flat = flat_rows(knn if knn is not None else knn_indices(xyz, centres, nn_), P1)  # [B·P2·nn]
         rel = gather_rows(xyz, flat).view(B, P2, nn_, 3) - centres.unsqueeze(2)        # [B, P2, nn, 3]
         rel_aug = torch.cat([rel, (rel * rel).sum(-1, keepdim=True), torch.ones_like(rel[..., :1])], -1)  # [B, P2, nn, 5]
         w = F.relu(self.kernel_aug @ rel_aug.transpose(-1, -2))                       # [B, P2, 13, nn]
@@ -123,10 +124,10 @@ class QuotientBlock(nn.Module):
         self.intra = QuotientIntraConv(spec.c_out, spec.c_out)
         self.skip = None if lifting else nn.Linear(spec.c_in, spec.c_out)
 
-    def forward(self, xyz: torch.Tensor, feats: torch.Tensor | None) -> tuple:
+    def forward(self, xyz: torch.Tensor, feats: torch.Tensor | None, knn: torch.Tensor | None = None) -> tuple:
         """xyz [B, P1, 3], feats [B, P1, V, Cin] | None → (xyz [B, P2, 3], feats [B, P2, V, Cout])."""
         P2 = self.spec.points_out
-        x = F.leaky_relu(instance_norm(self.inter(xyz, feats)), LEAKY_SLOPE)
+        x = F.leaky_relu(instance_norm(self.inter(xyz, feats, knn)), LEAKY_SLOPE)
         x = F.leaky_relu(instance_norm(self.intra(x)), LEAKY_SLOPE)
         if self.skip is not None:
             x = x + F.leaky_relu(instance_norm(self.skip(feats[:, :P2])), LEAKY_SLOPE)
