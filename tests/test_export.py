@@ -122,7 +122,7 @@ def _check_graph_rules(path, cfg):
                 group_convs += 1
     n_layers = len(cfg.layers)
     assert group_convs == n_layers                          # one intra (group) conv per separable layer
-    assert ops.count("TopK") == n_layers                    # one neighbourhood search per layer
+    assert ops.count("TopK") == len({L.points_in for L in cfg.layers})  # one neighbourhood search per support size
     assert ops.count("Slice") >= sum(L.points_out < L.points_in for L in cfg.layers)   # prefix downsampling
     return proto
 
