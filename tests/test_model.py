@@ -144,3 +144,14 @@ def test_canonical_isotropy_flags_a_collapsed_blob():
     x = np.zeros((4, 64, 3), np.float32)
     assert canonical_isotropy(Fake([0.2, 0.2, 0.2]), x) > 0.85
     assert canonical_isotropy(Fake([0.02, 0.2, 0.3]), x) < 0.15
+
+
+def test_shared_neighbourhoods_match_per_layer_knn(rng):
+    from equipose.train.layers import knn_indices, shared_neighbourhoods
+    cfg = get_preset("edge")
+    x = torch.from_numpy(_cloud(rng, 2, cfg.num_points))
+    shared = shared_neighbourhoods(x, cfg.layers)
+    assert len({L.points_in for L in cfg.layers}) < len(cfg.layers)          # edge really shares one search
+    for L, nb in zip(cfg.layers, shared):
+        ref = knn_indices(x[:, :L.points_in], x[:, :L.points_out], L.neighbours)
+        assert nb.shape == (2, L.points_out, L.neighbours) and torch.equal(nb, ref)
