@@ -178,7 +178,9 @@ register_preset(ModelConfig(
     decoder_hidden=(128, 128),
     num_canonical_points=256,
     quotient=True,
-    description="Edge candidate Q: edge-a's layout on 12 vertex descriptors (E2PN-style quotient), lifted at the heads.",
+    score_points=128,
+    description="Edge candidate Q: edge-a's layout on 12 vertex descriptors (E2PN-style quotient), lifted at the heads; "
+                "hypotheses scored on the first 128 input points.",
 ))
 
 register_preset(PRESETS["edge-q"].replace(

@@ -56,6 +56,13 @@ def test_train_resume_calibrate_eval(tmp_path, data_root, mode):
     assert any(not torch.equal(w["state_dict"][k], src[k]) for k in src if k.startswith("pose_head.") and
                src[k].is_floating_point())                                             # trained
 
+    budget = tmp_path / "budget"                                     # --minutes: stops at the budget, validated
+    assert main(train[:-10] + ["--val-every", "100", "--out", str(budget), "--cache-dir", str(cache), "--views", "2",
+                               "--steps", "50", "--minutes", "1e-6"]) == 0
+    b = load_checkpoint(budget / "latest.pt")
+    assert b["step"] == 1 and b["training"]["history"][-1]["step"] == 1
+    assert b["training"]["history"][-1]["train_minutes"] > 0
+
 
 def test_ddp_two_processes_gloo(tmp_path, data_root):
     out = tmp_path / "ddp"

@@ -39,6 +39,9 @@ def add_arguments(p) -> None:
     p.add_argument("--select-weight", dest="select_weight", type=float,
                    help="distillation: weight of the cross-entropy that makes the student's own score pick the best "
                    "hypothesis (default 0)")
+    p.add_argument("--minutes", type=float,
+                   help="wall-clock budget: stop (validate, save) once this invocation's training steps took this many "
+                   "minutes, validation excluded; --steps still caps it (equal-budget comparisons of presets)")
     p.add_argument("--init", help="warm start from this checkpoint's weights (same preset and mode; fresh optimiser, "
                                   "step 0), e.g. a trained related category")
 

@@ -65,6 +65,8 @@ class TrainConfig:
     teacher: str = ""                     # partial only: distil from this complete-shape checkpoint (train/distill.py)
     teacher_refine: int = 5               # teacher's ICP re-scoring of its k best hypotheses (0 = plain network)
     select_weight: float = 0.0            # distillation: weight of the hypothesis-selection cross-entropy
+    minutes: float = 0.0                  # > 0: stop once the training steps (validation excluded) took this many
+                                          # minutes, validating and saving there (equal-budget comparisons)
 
     @classmethod
     def from_sources(cls, config_file=None, **overrides) -> "TrainConfig":
@@ -230,6 +232,7 @@ def train(cfg: TrainConfig, resume: bool = False, log=print) -> pathlib.Path:
         save_checkpoint(ckpt_path, model, category=cfg.category, scale=scale, symmetry=symmetry, step=step,
                         optimizer=opt, calibration=calibration, training=summary())
 
+    spent = 0.0                                      # training-step seconds of this invocation (``minutes`` budget)
     bar = tqdm(total=cfg.steps, initial=min(step, cfg.steps), disable=rank != 0, desc=f"train {cfg.category}/{cfg.mode}",
                dynamic_ncols=True)
     while step < cfg.steps:
@@ -255,13 +258,14 @@ def train(cfg: TrainConfig, resume: bool = False, log=print) -> pathlib.Path:
         opt.step()
         step += 1
         seconds.append(time.perf_counter() - t0)
+        spent += seconds[-1]
         bar.update(1)
         bar.set_postfix(loss=f"{loss.item():.5f}", s_step=f"{seconds[-1]:.2f}")
-        last = step == cfg.steps
+        last = step == cfg.steps or (cfg.minutes > 0 and spent >= 60.0 * cfg.minutes)
         if rank == 0 and (step % cfg.val_every == 0 or last):
             v = validate(model, val_inputs, symmetry, device)
             calibration = v.pop("calibration")
-            rec = {"step": step, "loss": float(loss.item()), "lr": lr, **v}
+            rec = {"step": step, "loss": float(loss.item()), "lr": lr, "train_minutes": spent / 60.0, **v}
             history.append(rec)
             with open(out / "log.jsonl", "a") as f:
                 f.write(json.dumps(rec) + "\n")
@@ -271,6 +275,8 @@ def train(cfg: TrainConfig, resume: bool = False, log=print) -> pathlib.Path:
             save()
         if world > 1 and (last or step % cfg.val_every == 0):
             torch.distributed.barrier()
+        if last:
+            break
     bar.close()
     if rank == 0 and not ckpt_path.is_file():
         save()
