@@ -76,8 +76,6 @@ def run(args) -> int:
     tmp = pathlib.Path(tempfile.mkdtemp(prefix="equipose-bench-"))
     if args.points:
         model = _variant_at(model, args.points, tmp)
-    if args.sweep:
-        return _sweep(model, args, tmp)
     refine = args.refine
     if refine != "auto":
         try:
@@ -86,6 +84,8 @@ def run(args) -> int:
             raise ConfigError(f"--refine takes 'auto' or an integer ≥ 0, got {args.refine!r}") from None
         if refine < 0:
             raise ConfigError(f"--refine takes 'auto' or an integer ≥ 0, got {refine}")
+    if args.sweep:
+        return _sweep(model, args, tmp, refine)
     backends = ["onnxruntime-fp32"] + [COMPARE[c] for c in extra]
     result = run_benchmark(model, backends, threads=args.threads, objects=args.batch, runs=args.runs,
                            warmup=args.warmup, checkpoint=args.checkpoint, refine=refine)
@@ -95,26 +95,27 @@ def run(args) -> int:
     return 0
 
 
-def _sweep(model, args, tmp) -> int:
+def _sweep(model, args, tmp, refine="auto") -> int:
     from equipose.bench import run_backend
     runs = min(args.runs, 30)
-    out = {"model": model, "runs": runs, "points": [], "threads": [], "objects": []}
-    print(f"sweep (onnxruntime-fp32, {runs} runs each, end-to-end p50 ms)")
+    out = {"model": model, "runs": runs, "refine": refine, "points": [], "threads": [], "objects": []}
+    print(f"sweep (onnxruntime-fp32, {runs} runs each, end-to-end p50 ms, ICP re-scoring: {refine}; random-weight "
+          "variants at other N)")
     for n in (256, 512, 1024, 2048):
         try:
             m = _variant_at(model, n, tmp)
         except ConfigError as e:
             print(f"  N={n}: skipped ({e})", file=sys.stderr)
             continue
-        r = run_backend("onnxruntime-fp32", m, args.threads, 1, runs, 3)
+        r = run_backend("onnxruntime-fp32", m, args.threads, 1, runs, 3, refine=refine)
         out["points"].append({"n": n, "p50_ms": r["p50_ms"], "p95_ms": r["p95_ms"]})
         print(f"  N={n:5d}  threads={args.threads}  objects=1  p50 {r['p50_ms']:8.2f}  p95 {r['p95_ms']:8.2f}", flush=True)
     for t in (1, 2):
-        r = run_backend("onnxruntime-fp32", model, t, 1, runs, 3)
+        r = run_backend("onnxruntime-fp32", model, t, 1, runs, 3, refine=refine)
         out["threads"].append({"threads": t, "p50_ms": r["p50_ms"], "p95_ms": r["p95_ms"]})
         print(f"  model N  threads={t}  objects=1  p50 {r['p50_ms']:8.2f}  p95 {r['p95_ms']:8.2f}", flush=True)
     for b in range(1, 9):
-        r = run_backend("onnxruntime-fp32", model, args.threads, b, runs, 3)
+        r = run_backend("onnxruntime-fp32", model, args.threads, b, runs, 3, refine=refine)
         out["objects"].append({"objects": b, "p50_ms": r["p50_ms"], "per_object_ms": r["p50_ms"] / b})
         print(f"  model N  threads={args.threads}  objects={b}  p50 {r['p50_ms']:8.2f}  per object "
               f"{r['p50_ms'] / b:8.2f}", flush=True)
