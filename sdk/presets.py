@@ -165,18 +165,8 @@ register_preset(ModelConfig(
 
 
 # Quotient candidates (issue 6, session 4): the backbone on 12 vertex descriptors instead of 60 rotation copies.
-register_preset(ModelConfig(
+register_preset(PRESETS["edge-a"].replace(
     name="edge-q",
-    num_points=256,
-    channels=(16, 16, 32, 32),
-    strides=(2, 1, 2, 1),
-    radii=(0.16, 0.2263, 0.2263, 0.32),
-    neighbours=(16, 12, 16, 12),
-    kernel_points=13,
-    head_channels=64,
-    latent=64,
-    decoder_hidden=(128, 128),
-    num_canonical_points=256,
     quotient=True,
     score_points=128,
     description="Edge candidate Q: edge-a's layout on 12 vertex descriptors (E2PN-style quotient), lifted at the heads; "

@@ -20,7 +20,7 @@ import numpy as np
 
 from . import icosahedral
 
-__all__ = ["assert_equivariant", "equivariance_errors", "torch_model_fn", "onnx_model_fn"]
+__all__ = ["assert_equivariant", "equivariance_errors", "torch_model_fn", "torch_layer_fn", "onnx_model_fn"]
 
 ModelFn = Callable[[np.ndarray], dict]
 
@@ -84,6 +84,25 @@ def torch_model_fn(model, with_features: bool = True) -> ModelFn:
         if with_features:
             keep.add("features")
         return {k: v.numpy() for k, v in out.items() if k in keep}
+
+    return fn
+
+
+def torch_layer_fn(layer_fwd) -> ModelFn:
+    """Adapt a torch callable ``points [B, N, 3] → features [B, P, 60 | 12, C]`` (a layer stack) to a model function.
+
+    The contract outputs are constant dummies, so the harness checks only the features' permutation. Use with
+    ``translation=np.zeros(3)`` (a layer stack sees the points as given, not centred).
+    """
+    import torch
+
+    def fn(points):
+        with torch.no_grad():
+            f = layer_fwd(torch.from_numpy(np.ascontiguousarray(points))).numpy()
+        b = points.shape[0]
+        return {"canonical_shape": np.zeros((b, 1, 3)), "hypothesis_rotations": np.zeros((b, 60, 3, 3)),
+                "hypothesis_translations": np.zeros((b, 60, 3)), "hypothesis_scores": np.zeros((b, 60)),
+                "features": f}
 
     return fn
 

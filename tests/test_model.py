@@ -6,7 +6,7 @@ torch = pytest.importorskip("torch")
 
 from equipose import icosahedral as I  # noqa: E402
 from equipose.presets import count_params, get_preset  # noqa: E402
-from equipose.testing import assert_equivariant, torch_model_fn  # noqa: E402
+from equipose.testing import assert_equivariant, torch_layer_fn, torch_model_fn  # noqa: E402
 from equipose.train import EquiPoseNet, chamfer_min_of_60_loss  # noqa: E402
 from equipose.train.layers import InterSO3Conv, IntraSO3Conv, SeparableSO3Block  # noqa: E402
 
@@ -30,19 +30,6 @@ def test_small_preset_equivariant_subset(rng):
     assert_equivariant(torch_model_fn(model), _cloud(rng, 1, model.num_points), rotations=[0, 13, 27, 36, 58])
 
 
-def _layer_fn(layer_fwd):
-    """Wrap a layer as a model function exposing only ``features`` (the harness then checks the permutation)."""
-    def fn(points):
-        with torch.no_grad():
-            f = layer_fwd(torch.from_numpy(points)).numpy()
-        b = points.shape[0]
-        # constant dummies for the contract outputs so that the harness compares only the features
-        return {"canonical_shape": np.zeros((b, 1, 3)), "hypothesis_rotations": np.tile(np.eye(3), (b, 60, 1, 1)) * 0,
-                "hypothesis_translations": np.zeros((b, 60, 3)), "hypothesis_scores": np.zeros((b, 60)),
-                "features": f}
-    return fn
-
-
 def test_layers_equivariant(rng):
     torch.manual_seed(2)
     cfg = get_preset("tiny")
@@ -56,7 +43,7 @@ def test_layers_equivariant(rng):
 
     x = _cloud(rng, 1, cfg.num_points) - 0.0
     x = x - x.mean(1, keepdims=True)
-    errs = assert_equivariant(_layer_fn(stack), x, rotations=range(0, 60, 3), translation=np.zeros(3))
+    errs = assert_equivariant(torch_layer_fn(stack), x, rotations=range(0, 60, 3), translation=np.zeros(3))
     assert errs["features"] < 1e-4
 
 

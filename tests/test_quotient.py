@@ -6,7 +6,7 @@ torch = pytest.importorskip("torch")
 
 from equipose import icosahedral as I  # noqa: E402
 from equipose.presets import count_params, get_preset, total_macs  # noqa: E402
-from equipose.testing import assert_equivariant, torch_model_fn  # noqa: E402
+from equipose.testing import assert_equivariant, torch_layer_fn, torch_model_fn  # noqa: E402
 from equipose.train import EquiPoseNet  # noqa: E402
 from equipose.train.quotient import QuotientBlock, QuotientInterConv, QuotientIntraConv, lift_pairs  # noqa: E402
 
@@ -75,17 +75,6 @@ def test_intra_conv_matches_loop_reference(rng):
     assert np.allclose(out, ref + conv.bias.detach().numpy(), atol=1e-5)
 
 
-def _features_fn(fwd):
-    def fn(points):
-        with torch.no_grad():
-            f = fwd(torch.from_numpy(points)).numpy()
-        b = points.shape[0]
-        return {"canonical_shape": np.zeros((b, 1, 3)), "hypothesis_rotations": np.zeros((b, 60, 3, 3)),
-                "hypothesis_translations": np.zeros((b, 60, 3)), "hypothesis_scores": np.zeros((b, 60)),
-                "features": f}
-    return fn
-
-
 def test_blocks_and_lift_equivariant(rng):
     torch.manual_seed(2)
     cfg = get_preset("edge-q")
@@ -96,10 +85,10 @@ def test_blocks_and_lift_equivariant(rng):
         return f                                                                      # [B, P, 12, C]
 
     x = _cloud(rng, 1, cfg.num_points)
-    errs = assert_equivariant(_features_fn(stack), x, rotations=range(0, 60, 4), translation=np.zeros(3))
+    errs = assert_equivariant(torch_layer_fn(stack), x, rotations=range(0, 60, 4), translation=np.zeros(3))
     assert errs["features"] < 1e-4
     # the pair lift turns vertex descriptors into rotation features (re-indexed by CAYLEY): checked as features
-    lifted = _features_fn(lambda p: lift_pairs(stack(p).amax(1)).unsqueeze(1))
+    lifted = torch_layer_fn(lambda p: lift_pairs(stack(p).amax(1)).unsqueeze(1))
     errs = assert_equivariant(lifted, x, rotations=range(1, 60, 6), translation=np.zeros(3))
     assert errs["features"] < 1e-4
 

@@ -25,7 +25,7 @@ from torch.nn import functional as F
 from equipose import icosahedral
 from equipose.presets import LayerSpec
 
-from .layers import LEAKY_SLOPE, flat_rows, gather_rows, instance_norm, knn_indices
+from .layers import SeparableSO3Block, flat_rows, gather_rows, knn_indices
 
 __all__ = ["QuotientInterConv", "QuotientIntraConv", "QuotientBlock", "lift_pairs", "V", "KERNEL_CLASSES",
            "VERTEX_CLASSES"]
@@ -114,24 +114,19 @@ class QuotientIntraConv(nn.Module):
         return self.classes @ y + self.bias                                            # [B, P, V, Cout]
 
 
-class QuotientBlock(nn.Module):
-    """inter conv → IN → LeakyReLU → intra conv → IN → LeakyReLU, plus a 1×1 skip (IN, LeakyReLU), on vertex features."""
+class QuotientBlock(SeparableSO3Block):
+    """inter conv → IN → LeakyReLU → intra conv → IN → LeakyReLU, plus a 1×1 skip (IN, LeakyReLU), on vertex features.
+
+    The same block as ``layers.SeparableSO3Block`` (its ``forward``) with the quotient convolutions:
+    xyz [B, P1, 3], feats [B, P1, V, Cin] | None → (xyz [B, P2, 3], feats [B, P2, V, Cout]).
+    """
 
     def __init__(self, spec: LayerSpec, lifting: bool = False):
-        super().__init__()
+        nn.Module.__init__(self)
         self.spec, self.lifting = spec, lifting
         self.inter = QuotientInterConv(spec)
         self.intra = QuotientIntraConv(spec.c_out, spec.c_out)
         self.skip = None if lifting else nn.Linear(spec.c_in, spec.c_out)
-
-    def forward(self, xyz: torch.Tensor, feats: torch.Tensor | None, knn: torch.Tensor | None = None) -> tuple:
-        """xyz [B, P1, 3], feats [B, P1, V, Cin] | None → (xyz [B, P2, 3], feats [B, P2, V, Cout])."""
-        P2 = self.spec.points_out
-        x = F.leaky_relu(instance_norm(self.inter(xyz, feats, knn)), LEAKY_SLOPE)
-        x = F.leaky_relu(instance_norm(self.intra(x)), LEAKY_SLOPE)
-        if self.skip is not None:
-            x = x + F.leaky_relu(instance_norm(self.skip(feats[:, :P2])), LEAKY_SLOPE)
-        return xyz[:, :P2], x
 
 
 _PAIR = torch.tensor(icosahedral.ROTATION_VERTEX_PAIR.reshape(-1), dtype=torch.int64)
