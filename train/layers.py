@@ -20,7 +20,7 @@ from torch.nn import functional as F
 from equipose import icosahedral
 from equipose.presets import LayerSpec
 
-__all__ = ["knn_indices", "flat_rows", "shared_neighbourhoods", "gather_rows", "InterSO3Conv", "IntraSO3Conv", "SeparableSO3Block", "instance_norm",
+__all__ = ["knn_indices", "flat_rows", "shared_neighbourhoods", "hat_weights", "gather_rows", "InterSO3Conv", "IntraSO3Conv", "SeparableSO3Block", "instance_norm",
            "LEAKY_SLOPE", "count_parameters"]
 
 LEAKY_SLOPE = 0.01
@@ -43,6 +43,22 @@ def flat_rows(idx: torch.Tensor, p1: int) -> torch.Tensor:
     """Per-sample indices [B, P2, k] into P1 points → flat int64 [B·P2·k] rows of a [B·P1, ...] view."""
     offset = (torch.arange(idx.shape[0], device=idx.device) * p1).view(-1, 1, 1)
     return (idx + offset).reshape(-1)
+
+
+def hat_weights(xyz: torch.Tensor, spec: LayerSpec, kernel_aug: torch.Tensor, knn: torch.Tensor | None = None) -> tuple:
+    """Neighbourhoods of a layer's centres and their kernel correlations relu(1 − ‖x_n − x_p − κ‖² / σ).
+
+    xyz [B, P1, 3] (centres: the first ``spec.points_out``); ``kernel_aug`` [R, 5] = [2κ/σ, −1/σ, 1 − ‖κ‖²/σ] per
+    kernel point (rotated or not); ``knn`` [B, P2, nn] precomputed neighbour indices or None.
+    Returns (flat row indices [B·P2·nn] into ``xyz.reshape(B·P1, …)``, weights [B, P2, R, nn]).
+    """
+    B, P1, _ = xyz.shape
+    P2, nn_ = spec.points_out, spec.neighbours
+    centres = xyz[:, :P2]                                                              # [B, P2, 3]
+    flat = flat_rows(knn if knn is not None else knn_indices(xyz, centres, nn_), P1)  # [B·P2·nn]
+    rel = gather_rows(xyz, flat).view(B, P2, nn_, 3) - centres.unsqueeze(2)            # [B, P2, nn, 3]
+    rel_aug = torch.cat([rel, (rel * rel).sum(-1, keepdim=True), torch.ones_like(rel[..., :1])], -1)  # [B, P2, nn, 5]
+    return flat, F.relu(kernel_aug @ rel_aug.transpose(-1, -2))                        # [B, P2, R, nn]
 
 
 def shared_neighbourhoods(xyz: torch.Tensor, layers) -> list:
@@ -112,13 +128,9 @@ class InterSO3Conv(nn.Module):
         """xyz [B, P1, 3], feats [B, P1, A, Cin] or None (constant ones: the lifting layer) → [B, P2, A, Cout].
         ``knn`` [B, P2, nn]: precomputed neighbour indices (``shared_neighbourhoods``), else computed here."""
         s, K = self.spec, self.k
-        B, P1, _ = xyz.shape
+        B = xyz.shape[0]
         P2, nn_ = s.points_out, s.neighbours
-        centres = xyz[:, :P2]                                                          # [B, P2, 3]
-        flat = flat_rows(knn if knn is not None else knn_indices(xyz, centres, nn_), P1)  # [B·P2·nn]
-        rel = gather_rows(xyz, flat).view(B, P2, nn_, 3) - centres.unsqueeze(2)        # [B, P2, nn, 3]
-        rel_aug = torch.cat([rel, (rel * rel).sum(-1, keepdim=True), torch.ones_like(rel[..., :1])], -1)  # [B, P2, nn, 5]
-        w = F.relu(self.kernel_aug @ rel_aug.transpose(-1, -2))                       # [B, P2, A·K | K, nn]
+        flat, w = hat_weights(xyz, s, self.kernel_aug, knn)                            # [B·P2·nn], [B, P2, A·K | K, nn]
         if self.symmetric:
             if feats is None:                                                          # lifting: f ≡ 1
                 g = w.sum(-1).index_select(2, self.route_lift).view(B, P2, A, K)       # [B, P2, A, K]

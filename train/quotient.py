@@ -20,12 +20,11 @@ from __future__ import annotations
 import numpy as np
 import torch
 from torch import nn
-from torch.nn import functional as F
 
 from equipose import icosahedral
 from equipose.presets import LayerSpec
 
-from .layers import SeparableSO3Block, flat_rows, gather_rows, knn_indices
+from .layers import SeparableSO3Block, gather_rows, hat_weights
 
 __all__ = ["QuotientInterConv", "QuotientIntraConv", "QuotientBlock", "lift_pairs", "V", "KERNEL_CLASSES",
            "VERTEX_CLASSES"]
@@ -78,13 +77,9 @@ class QuotientInterConv(nn.Module):
         """xyz [B, P1, 3], feats [B, P1, V, Cin] or None (constant ones: the lifting layer) → [B, P2, V, Cout].
         ``knn`` [B, P2, nn]: precomputed neighbour indices (``layers.shared_neighbourhoods``), else computed here."""
         s = self.spec
-        B, P1, _ = xyz.shape
+        B = xyz.shape[0]
         P2, nn_ = s.points_out, s.neighbours
-        centres = xyz[:, :P2]                                                          # [B, P2, 3]
-        flat = flat_rows(knn if knn is not None else knn_indices(xyz, centres, nn_), P1)  # [B·P2·nn]
-        rel = gather_rows(xyz, flat).view(B, P2, nn_, 3) - centres.unsqueeze(2)        # [B, P2, nn, 3]
-        rel_aug = torch.cat([rel, (rel * rel).sum(-1, keepdim=True), torch.ones_like(rel[..., :1])], -1)  # [B, P2, nn, 5]
-        w = F.relu(self.kernel_aug @ rel_aug.transpose(-1, -2))                       # [B, P2, 13, nn]
+        flat, w = hat_weights(xyz, s, self.kernel_aug, knn)                            # [B·P2·nn], [B, P2, 13, nn]
         wc = self.class_sum @ w                                                        # [B, P2, V·5, nn] per class
         if feats is None:                                                              # lifting: f ≡ 1
             g = wc.sum(-1).view(B, P2, V, KERNEL_CLASSES)                              # [B, P2, V, 5]
