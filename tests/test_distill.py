@@ -97,7 +97,8 @@ def test_teacher_targets_follow_the_render_pose(tmp_path, data_root):
     clouds = complete_clouds(data_root, "airplane", "train", limit=3)
     tt = teacher_targets(teacher, ds, clouds, refine=2, cache_file=tmp_path / "t.npz", log=lambda *_: None)
     V = len(ds)
-    assert tt["rotations"].shape == (V, 3, 3) and tt["translations"].shape == (V, 3) and tt["shapes"].shape[0] == V
+    assert tt["rotations"].shape == (V, 3, 3) and tt["translations"].shape == (V, 3)
+    assert tt["shapes"].shape[0] == len(clouds) and np.array_equal(tt["instance"], ds.instance)  # one shape per instance
     for v in range(V):
         R = tt["rotations"][v]
         assert np.allclose(R @ R.T, np.eye(3), atol=1e-5)

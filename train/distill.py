@@ -44,7 +44,10 @@ def complete_clouds(root, category: str, split: str, limit: int | None = None) -
 @torch.no_grad()
 def teacher_targets(teacher_path, dataset, clouds: list, refine: int = 5, batch_size: int = 32,
                     cache_file=None, log=print) -> dict:
-    """Teacher pose and canonical shape for every view of ``dataset`` (a ``RenderedPartial``).
+    """Teacher pose for every view of ``dataset`` (a ``RenderedPartial``) and canonical shape for every instance.
+
+    Returns ``{"rotations" [V, 3, 3], "translations" [V, 3] (model units, camera frame of each view),
+    "shapes" [I, M, 3] (one per instance), "instance" [V] int64 (each view's row of "shapes")}``.
 
     The teacher sees each instance's complete cloud once, in the object frame the renderer posed it from; its pose
     is carried to every view by that view's render pose (R_view · R_teacher, R_view · c + t_view) — exact for the
@@ -58,11 +61,11 @@ def teacher_targets(teacher_path, dataset, clouds: list, refine: int = 5, batch_
     if teacher.partial:
         raise ConfigError(f"--teacher {teacher_path}: the teacher must be a complete-shape model (mode complete)")
     key = json.dumps({"teacher": str(pathlib.Path(teacher_path).resolve()), "teacher_step": ck.get("step"),
-                      "views": len(dataset), "instances": len(clouds), "refine": refine, "v": 2})
+                      "views": len(dataset), "instances": len(clouds), "refine": refine, "v": 3})
     if cache_file is not None and pathlib.Path(cache_file).is_file():
         z = np.load(cache_file)
         if str(z["key"]) == key:
-            return {k: z[k] for k in ("rotations", "translations", "shapes")}
+            return {k: z[k] for k in ("rotations", "translations", "shapes", "instance")}
     n = teacher.num_points
     inputs = np.empty((len(clouds), n, 3), np.float32)
     for i, c in enumerate(clouds):
@@ -89,7 +92,8 @@ def teacher_targets(teacher_path, dataset, clouds: list, refine: int = 5, batch_
     Rv = np.asarray(dataset.R, np.float64)                                            # [V, 3, 3]
     res = {"rotations": Rv @ R_inst[inst],                                            # [V, 3, 3]
            "translations": np.einsum("vij,vj->vi", Rv, t_inst[inst]) + dataset.t / dataset.scale,   # [V, 3]
-           "shapes": shapes[inst]}                                                    # [V, M, 3]
+           "shapes": shapes,                                                          # [I, M, 3]
+           "instance": inst.astype(np.int64)}                                         # [V]
     if cache_file is not None:
         np.savez(cache_file, key=np.str_(key), **res)
     log(f"teacher targets: {len(clouds)} instances, {len(dataset)} views from {teacher_path} (refine {refine})")

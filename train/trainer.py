@@ -217,7 +217,8 @@ def train(cfg: TrainConfig, resume: bool = False, log=print) -> pathlib.Path:
         out.mkdir(parents=True, exist_ok=True)
         tt = teacher_targets(cfg.teacher, train_ds, clouds, refine=cfg.teacher_refine, cache_file=out / "teacher.npz",
                              log=log if rank == 0 else (lambda *_: None))
-        targets = {k: torch.from_numpy(np.asarray(v, np.float32)).to(device) for k, v in tt.items()}
+        targets = {k: torch.from_numpy(np.asarray(v, np.int64 if k == "instance" else np.float32)).to(device)
+                   for k, v in tt.items()}
     rng = np.random.default_rng([cfg.seed, rank, step])
     per_epoch = max(1, math.ceil(len(train_ds) / (cfg.batch_size * world)))
 
@@ -250,7 +251,8 @@ def train(cfg: TrainConfig, resume: bool = False, log=print) -> pathlib.Path:
             loss = chamfer_min_of_60_loss(net(x, return_aux=True))
         else:
             v = torch.from_numpy(idx).to(device)
-            loss, _ = distillation_loss(net(x, return_aux=True), targets["shapes"][v], targets["rotations"][v],
+            loss, _ = distillation_loss(net(x, return_aux=True), targets["shapes"][targets["instance"][v]],
+                                        targets["rotations"][v],
                                         targets["translations"][v], model.anchors,
                                         symmetric=symmetry != "none", select_weight=cfg.select_weight)
         opt.zero_grad(set_to_none=True)
