@@ -136,6 +136,7 @@ def _build_vertices():
 
 VERTICES, VERTEX_PERMUTATION = _build_vertices()
 
+
 def _build_vertex_tables():
     dots = VERTICES @ VERTICES.T                                      # [12, 12] cosines: 1, ±1/√5, −1
     cls = np.select([dots > 0.99, dots > 0.0, dots > -0.99], [0, 1, 2], 3).astype(np.int64)

@@ -20,8 +20,8 @@ from torch.nn import functional as F
 from equipose import icosahedral
 from equipose.presets import LayerSpec
 
-__all__ = ["knn_indices", "flat_rows", "shared_neighbourhoods", "hat_weights", "gather_rows", "InterSO3Conv", "IntraSO3Conv", "SeparableSO3Block", "instance_norm",
-           "LEAKY_SLOPE", "count_parameters"]
+__all__ = ["knn_indices", "flat_rows", "shared_neighbourhoods", "kernel_aug", "hat_weights", "gather_rows",
+           "InterSO3Conv", "IntraSO3Conv", "SeparableSO3Block", "instance_norm", "LEAKY_SLOPE", "count_parameters"]
 
 LEAKY_SLOPE = 0.01
 A = icosahedral.NUM_ROTATIONS
@@ -45,11 +45,19 @@ def flat_rows(idx: torch.Tensor, p1: int) -> torch.Tensor:
     return (idx + offset).reshape(-1)
 
 
-def hat_weights(xyz: torch.Tensor, spec: LayerSpec, kernel_aug: torch.Tensor, knn: torch.Tensor | None = None) -> tuple:
+def kernel_aug(kernel: np.ndarray, sigma: float) -> torch.Tensor:
+    """Kernel points [R, 3] (model units) → [R, 5] rows [2κ/σ, −1/σ, 1 − ‖κ‖²/σ], so that the hat weight
+    1 − ‖r − κ‖²/σ of an offset r is one MatMul with [r, ‖r‖², 1] (``hat_weights``)."""
+    aug = np.concatenate([2.0 * kernel / sigma, np.full((len(kernel), 1), -1.0 / sigma),
+                          1.0 - (kernel ** 2).sum(1, keepdims=True) / sigma], 1)          # [R, 5]
+    return torch.tensor(aug, dtype=torch.float32)
+
+
+def hat_weights(xyz: torch.Tensor, spec: LayerSpec, aug: torch.Tensor, knn: torch.Tensor | None = None) -> tuple:
     """Neighbourhoods of a layer's centres and their kernel correlations relu(1 − ‖x_n − x_p − κ‖² / σ).
 
-    xyz [B, P1, 3] (centres: the first ``spec.points_out``); ``kernel_aug`` [R, 5] = [2κ/σ, −1/σ, 1 − ‖κ‖²/σ] per
-    kernel point (rotated or not); ``knn`` [B, P2, nn] precomputed neighbour indices or None.
+    xyz [B, P1, 3] (centres: the first ``spec.points_out``); ``aug`` [R, 5] from ``kernel_aug`` for the layer's
+    (rotated or unrotated) kernel points; ``knn`` [B, P2, nn] precomputed neighbour indices or None.
     Returns (flat row indices [B·P2·nn] into ``xyz.reshape(B·P1, …)``, weights [B, P2, R, nn]).
     """
     B, P1, _ = xyz.shape
@@ -58,7 +66,7 @@ def hat_weights(xyz: torch.Tensor, spec: LayerSpec, kernel_aug: torch.Tensor, kn
     flat = flat_rows(knn if knn is not None else knn_indices(xyz, centres, nn_), P1)  # [B·P2·nn]
     rel = gather_rows(xyz, flat).view(B, P2, nn_, 3) - centres.unsqueeze(2)            # [B, P2, nn, 3]
     rel_aug = torch.cat([rel, (rel * rel).sum(-1, keepdim=True), torch.ones_like(rel[..., :1])], -1)  # [B, P2, nn, 5]
-    return flat, F.relu(kernel_aug @ rel_aug.transpose(-1, -2))                        # [B, P2, R, nn]
+    return flat, F.relu(aug @ rel_aug.transpose(-1, -2))                               # [B, P2, R, nn]
 
 
 def shared_neighbourhoods(xyz: torch.Tensor, layers) -> list:
@@ -115,10 +123,7 @@ class InterSO3Conv(nn.Module):
             rot = kern                                                                 # [K, 3] unrotated
         else:
             rot = np.einsum("aij,kj->aki", icosahedral.ANCHORS, kern).reshape(-1, 3)  # [A·K, 3]
-        # hat weights as one MatMul: 1 − ‖r − κ‖²/σ = [r, ‖r‖², 1] · [2κ/σ, −1/σ, 1 − ‖κ‖²/σ]
-        aug = np.concatenate([2.0 * rot / spec.sigma, np.full((len(rot), 1), -1.0 / spec.sigma),
-                              1.0 - (rot ** 2).sum(1, keepdims=True) / spec.sigma], 1)   # [A·K, 5]
-        self.register_buffer("kernel_aug", torch.tensor(aug, dtype=torch.float32), persistent=False)
+        self.register_buffer("kernel_aug", kernel_aug(rot, spec.sigma), persistent=False)   # [A·K | K, 5]
         self.weight = nn.Parameter(torch.empty(kernel_points * spec.c_in, spec.c_out))  # [K·Cin, Cout], k-major
         self.bias = nn.Parameter(torch.full((spec.c_out,), 1e-3))
         nn.init.xavier_normal_(self.weight.view(kernel_points, spec.c_in, spec.c_out).permute(2, 1, 0),

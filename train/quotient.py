@@ -24,7 +24,7 @@ from torch import nn
 from equipose import icosahedral
 from equipose.presets import LayerSpec
 
-from .layers import SeparableSO3Block, gather_rows, hat_weights
+from .layers import SeparableSO3Block, gather_rows, hat_weights, kernel_aug
 
 __all__ = ["QuotientInterConv", "QuotientIntraConv", "QuotientBlock", "lift_pairs", "V", "KERNEL_CLASSES",
            "VERTEX_CLASSES"]
@@ -64,9 +64,7 @@ class QuotientInterConv(nn.Module):
         super().__init__()
         self.spec = spec
         kern = icosahedral.kernel_points(13, spec.kernel_radius)                       # [13, 3]
-        aug = np.concatenate([2.0 * kern / spec.sigma, np.full((13, 1), -1.0 / spec.sigma),
-                              1.0 - (kern ** 2).sum(1, keepdims=True) / spec.sigma], 1)  # [13, 5]
-        self.register_buffer("kernel_aug", torch.tensor(aug, dtype=torch.float32), persistent=False)
+        self.register_buffer("kernel_aug", kernel_aug(kern, spec.sigma), persistent=False)  # [13, 5]
         self.register_buffer("class_sum", torch.tensor(_kernel_class_matrix()), persistent=False)   # [V·5, 13]
         self.weight = nn.Parameter(torch.empty(KERNEL_CLASSES * spec.c_in, spec.c_out))  # [5·Cin, Cout], class-major
         self.bias = nn.Parameter(torch.full((spec.c_out,), 1e-3))
