@@ -10,6 +10,7 @@ import argparse
 import pathlib
 
 from equipose.errors import ConfigError
+from equipose.presets import list_presets
 
 __all__ = ["add_arguments", "run"]
 
@@ -17,7 +18,7 @@ __all__ = ["add_arguments", "run"]
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     src = parser.add_mutually_exclusive_group(required=True)
     src.add_argument("--checkpoint", "-c", type=pathlib.Path, help="training checkpoint (.pt) to export")
-    src.add_argument("--preset", help="preset name for --random-init (tiny, small, paper, ...)")
+    src.add_argument("--preset", help=f"preset name for --random-init: one of {', '.join(list_presets())}")
     parser.add_argument("--random-init", action="store_true",
                         help="export random weights of --preset (tests, benchmarks); metadata says random_init")
     parser.add_argument("-o", "--output", type=pathlib.Path, required=True, help="output .onnx file")

@@ -7,13 +7,16 @@ Convention:
 """
 from __future__ import annotations
 
+from equipose.presets import list_presets
+
 from .trainer import TrainConfig, train
 
 
 def add_arguments(p) -> None:
     p.add_argument("--category", help="ModelNet40 category (default airplane)")
     p.add_argument("--mode", choices=["complete", "partial"], help="complete clouds or rendered partial depth")
-    p.add_argument("--preset", help="model preset: tiny | small | paper (default small)")
+    p.add_argument("--preset", help=f"model preset: one of {', '.join(list_presets())} (default small; 'edge' is the "
+                                    "deployment preset)")
     p.add_argument("--steps", type=int, help="optimisation steps in total (a resumed run continues to this)")
     p.add_argument("--out", help="output folder (latest.pt, log.jsonl, config.json)")
     p.add_argument("--config", help="JSON file of TrainConfig options")
