@@ -48,8 +48,11 @@ def main(argv=None) -> int:
         p_ours = " / ".join(f"{v:g}" for v in paper["ours"]) if paper else "–"
         p_icp = " / ".join(f"{v:g}" for v in paper["icp"]) if paper else "–"
         flip = f"{m['flip_rate']:.2f}" if "flip_rate" in m else "–"
+        steps = str(c["training"].get("step", "–"))
+        if (c["training"].get("config") or {}).get("init"):
+            steps += " (warm start)"                                        # continued from another run's weights
         print(f"| `{c['name']}` | {c['category']} | {c['mode']} | {test_mode} | {c['precision']} | {c['size_mb']:.2f} | "
-              f"{c['training'].get('step', '–')} | {_triple(m)} | {flip} | {_triple(m.get('icp60', {}))} | "
+              f"{steps} | {_triple(m)} | {flip} | {_triple(m.get('icp60', {}))} | "
               f"{p_ours} | {p_icp} |")
     return 0
 
