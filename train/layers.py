@@ -180,9 +180,12 @@ class SeparableSO3Block(nn.Module):
     def __init__(self, spec: LayerSpec, kernel_points: int, lifting: bool = False):
         super().__init__()
         self.spec, self.lifting = spec, lifting
-        self.inter = InterSO3Conv(spec, kernel_points)
-        self.intra = IntraSO3Conv(spec.c_out, spec.c_out)
+        self.inter, self.intra = self._convolutions(spec, kernel_points)
         self.skip = None if lifting else nn.Linear(spec.c_in, spec.c_out)  # lifting input is constant: no skip
+
+    def _convolutions(self, spec: LayerSpec, kernel_points: int) -> tuple:
+        """(inter, intra) convolution modules of the block; subclasses swap in other feature layouts."""
+        return InterSO3Conv(spec, kernel_points), IntraSO3Conv(spec.c_out, spec.c_out)
 
     def forward(self, xyz: torch.Tensor, feats: torch.Tensor | None, knn: torch.Tensor | None = None) -> tuple:
         """xyz [B, P1, 3], feats [B, P1, A, Cin] | None → (xyz [B, P2, 3], feats [B, P2, A, Cout])."""

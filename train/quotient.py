@@ -115,11 +115,10 @@ class QuotientBlock(SeparableSO3Block):
     """
 
     def __init__(self, spec: LayerSpec, lifting: bool = False):
-        nn.Module.__init__(self)
-        self.spec, self.lifting = spec, lifting
-        self.inter = QuotientInterConv(spec)
-        self.intra = QuotientIntraConv(spec.c_out, spec.c_out)
-        self.skip = None if lifting else nn.Linear(spec.c_in, spec.c_out)
+        super().__init__(spec, 13, lifting)
+
+    def _convolutions(self, spec: LayerSpec, kernel_points: int) -> tuple:
+        return QuotientInterConv(spec), QuotientIntraConv(spec.c_out, spec.c_out)
 
 
 _PAIR = torch.tensor(icosahedral.ROTATION_VERTEX_PAIR.reshape(-1), dtype=torch.int64)
