@@ -274,31 +274,34 @@ def organized_outlier_mask(points: np.ndarray, rows: np.ndarray, cols: np.ndarra
     grid of pitch ``step`` (the crop's subsampling). For each point the mean distance to its present grid neighbours
     is compared with mean + ``std_ratio`` · std of that statistic over all points; points with no neighbour at all
     are outliers (isolated flying pixels). Same criterion as ``statistical_outlier_mask`` but the neighbourhood
-    comes from the image instead of a k-d tree (about 10× faster on a crop). Returns [P] bool inliers.
+    comes from the image instead of a k-d tree, as 8 whole-grid shifts (7–15× faster than the tree on a crop). Returns [P]
+    bool inliers.
     """
     P = len(points)
     if P < 10:
         return np.ones(P, dtype=bool)
     r = (rows - rows.min()) // step                                             # [P] grid coordinates
     c = (cols - cols.min()) // step
-    h, w = int(r.max()) + 3, int(c.max()) + 3
-    grid = np.full((h, w, 3), np.nan, np.float64)                               # [h, w, 3], 1-cell NaN border
-    grid[r + 1, c + 1] = points
-    total = np.zeros(P)
-    count = np.zeros(P)
-    for dr in (-1, 0, 1):
+    h, w = int(r.max()) + 1, int(c.max()) + 1
+    grid = np.full((3, h + 2, w + 2), np.nan, np.float32)                       # [3, h+2, w+2], 1-cell NaN border
+    grid[:, r + 1, c + 1] = np.asarray(points, np.float32).T
+    core = grid[:, 1:-1, 1:-1]                                                  # [3, h, w] every cell
+    total = np.zeros((h, w), np.float32)                                        # [h, w] sum of neighbour distances
+    count = np.zeros((h, w), np.float32)                                        # [h, w] present neighbours
+    for dr in (-1, 0, 1):                                                       # whole-grid shifts, one per direction
         for dc in (-1, 0, 1):
             if dr == 0 and dc == 0:
                 continue
-            nb = grid[r + 1 + dr, c + 1 + dc]                                   # [P, 3] (NaN = absent)
-            dist = np.sqrt(((nb - points) ** 2).sum(1))                         # [P]
+            diff = grid[:, 1 + dr:h + 1 + dr, 1 + dc:w + 1 + dc] - core         # [3, h, w] (NaN = absent)
+            dist = np.sqrt(np.einsum("kij,kij->ij", diff, diff))                # [h, w]
             ok = np.isfinite(dist)
-            total[ok] += dist[ok]
+            total += np.where(ok, dist, np.float32(0.0))
             count += ok
+    total, count = total[r, c], count[r, c]                                     # [P] at the points' cells
     has = count > 0
     if has.sum() < 10:
         return has
-    mean_d = total[has] / count[has]                                            # [P']
+    mean_d = (total[has] / count[has]).astype(np.float64)                       # [P']
     thr = mean_d.mean() + std_ratio * mean_d.std()
     keep = np.zeros(P, dtype=bool)
     keep[has] = mean_d <= thr

@@ -27,16 +27,17 @@ LEAKY_SLOPE = 0.01
 A = icosahedral.NUM_ROTATIONS
 
 
-def knn_indices(support: torch.Tensor, centres: torch.Tensor, k: int) -> torch.Tensor:
-    """Indices [B, P2, k] (into ``support``'s points, nearest first) of the ``k`` nearest support points of each centre.
+def knn_indices(support: torch.Tensor, centres: torch.Tensor, k: int, ordered: bool = True) -> torch.Tensor:
+    """Indices [B, P2, k] (into ``support``'s points) of the ``k`` nearest support points of each centre.
 
-    support [B, P1, 3]; centres [B, P2, 3] (same frame).
+    support [B, P1, 3]; centres [B, P2, 3] (same frame). ``ordered``: nearest first (a k' < k prefix is then the k'
+    nearest); otherwise the set in any order, which a TopK finds about 3× faster (onnxruntime, 256 → 16).
     """
     # rank by ‖s‖² − 2 c·s (‖c‖² is constant per row): one MatMul of augmented vectors [c, 1] · [−2s, ‖s‖²]
     c_aug = torch.cat([centres, torch.ones_like(centres[..., :1])], dim=-1)            # [B, P2, 4]
     s_aug = torch.cat([-2.0 * support, (support * support).sum(-1, keepdim=True)], dim=-1)  # [B, P1, 4]
     rank = c_aug @ s_aug.transpose(1, 2)                                               # [B, P2, P1]
-    return torch.topk(rank, k, dim=-1, largest=False, sorted=True).indices             # [B, P2, k]
+    return torch.topk(rank, k, dim=-1, largest=False, sorted=ordered).indices          # [B, P2, k]
 
 
 def flat_rows(idx: torch.Tensor, p1: int) -> torch.Tensor:
@@ -74,13 +75,16 @@ def shared_neighbourhoods(xyz: torch.Tensor, layers) -> list:
 
     With FPS-ordered input every layer's support is the prefix ``xyz[:, :points_in]`` and its centres the prefix
     ``[:, :points_out]``, so layers sharing a support share one kNN over the most centres and neighbours any of them
-    needs (sorted, so a layer's neighbourhood is a prefix of the shared one). xyz [B, N, 3].
+    needs. It is sorted (nearest first) only where some layer takes fewer neighbours than that, so that its
+    neighbourhood is a prefix of the shared one; a convolution sums over its neighbours, so order is otherwise
+    irrelevant. xyz [B, N, 3].
     """
     need: dict = {}
     for L in layers:
         p2, k = need.get(L.points_in, (0, 0))
         need[L.points_in] = (max(p2, L.points_out), max(k, L.neighbours))
-    knn = {p1: knn_indices(xyz[:, :p1], xyz[:, :p2], k) for p1, (p2, k) in need.items()}
+    prefix = {L.points_in for L in layers if L.neighbours < need[L.points_in][1]}   # supports needing nearest-first
+    knn = {p1: knn_indices(xyz[:, :p1], xyz[:, :p2], k, ordered=p1 in prefix) for p1, (p2, k) in need.items()}
     return [knn[L.points_in][:, :L.points_out, :L.neighbours] for L in layers]
 
 

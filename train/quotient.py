@@ -82,10 +82,15 @@ class QuotientInterConv(nn.Module):
         if feats is None:                                                              # lifting: f ≡ 1
             g = wc.sum(-1).view(B, P2, V, KERNEL_CLASSES)                              # [B, P2, V, 5]
             return g @ self.weight + self.bias                                         # [B, P2, V, Cout]
+        # vertex-major, so that the gathered neighbourhoods need no transpose: only the small per-point
+        # tensors (features in, result out) change layout
         C = feats.shape[-1]
-        nb = gather_rows(feats, flat).view(B, P2, nn_, V, C).transpose(2, 3)          # [B, P2, V, nn, C]
-        g = wc.view(B, P2, V, KERNEL_CLASSES, nn_) @ nb                                # [B, P2, V, 5, C]
-        return g.reshape(B, P2, V, KERNEL_CLASSES * C) @ self.weight + self.bias       # [B, P2, V, Cout]
+        fv = feats.permute(2, 0, 1, 3).reshape(V, -1, C)                               # [V, B·P1, C]
+        nb = fv.index_select(1, flat).view(V, -1, nn_, C)                              # [V, B·P2, nn, C]
+        wv = wc.view(-1, V, KERNEL_CLASSES * nn_).transpose(0, 1)                      # [V, B·P2, 5·nn]
+        g = wv.reshape(V, -1, KERNEL_CLASSES, nn_) @ nb                                # [V, B·P2, 5, C]
+        y = g.reshape(V, -1, KERNEL_CLASSES * C) @ self.weight + self.bias             # [V, B·P2, Cout]
+        return y.view(V, B, P2, -1).permute(1, 2, 0, 3)                                # [B, P2, V, Cout]
 
 
 class QuotientIntraConv(nn.Module):

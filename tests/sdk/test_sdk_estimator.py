@@ -239,3 +239,20 @@ def test_shipped_model_by_name():
     assert PoseEstimator("cup-tabletop.int8", threads=1).metadata["precision"] == "int8"
     with pytest.raises(ModelFormatError, match="shipped"):
         PoseEstimator("no-such-model")
+
+
+def test_adaptive_threads_run_single_objects_on_one_thread_with_the_same_outputs(tiny_model, scene):
+    from equipose import PoseEstimator
+    depth, hit = scene
+    est = PoseEstimator(tiny_model, threads=2)                                  # tiny: a light model
+    assert est.single_thread and est._single_session is None                    # opened lazily
+    fixed = PoseEstimator(tiny_model, threads=2, adaptive_threads=False)
+    assert not fixed.single_thread and not PoseEstimator(tiny_model, threads=1).single_thread
+    a = est.predict(depth, K_VGA, mask=hit)
+    assert est._single_session is not None
+    assert est._single_session.get_session_options().intra_op_num_threads == 1
+    b = fixed.predict(depth, K_VGA, mask=hit)
+    np.testing.assert_allclose(a.rotation, b.rotation, atol=1e-5)
+    assert a.hypothesis_index == b.hypothesis_index
+    two = est.predict_batch(depth, K_VGA, masks=[hit, hit])                     # a batch: the main session
+    np.testing.assert_allclose(two[1].rotation, a.rotation, atol=1e-5)
