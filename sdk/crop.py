@@ -552,8 +552,9 @@ def fit_plane_ransac(points: np.ndarray, threshold: float = 0.01, iterations: in
             break
         q = points[inl]
         c0 = q.mean(0)
-        _, _, vt = np.linalg.svd(q - c0, full_matrices=False)
-        best_n = vt[2]
+        qc = q - c0                                                             # [P', 3]
+        _, vecs = np.linalg.eigh(qc.T @ qc)                                     # 3×3 scatter, ascending eigenvalues
+        best_n = vecs[:, 0]                                                     # least-variance direction
         best_d = -float(best_n @ c0)
     if best_d < 0:
         best_n, best_d = -best_n, -best_d

@@ -78,18 +78,19 @@ def farthest_point_order(points: np.ndarray, n: int, start: int = 0) -> np.ndarr
     p = (p - p.mean(0)).astype(np.float32)                                      # [P, 3] centred
     sq = np.einsum("ij,ij->i", p, p)[:, None]                                   # [P, 1]
     one = np.ones((P, 1), np.float32)
-    rows = np.concatenate([p, sq, one], 1)                                      # [P, 5]
+    rows_t = np.ascontiguousarray(np.concatenate([p, sq, one], 1).T)            # [5, P] (points along the fast axis)
     cols = np.concatenate([-2.0 * p, one, sq], 1)                               # [P, 5]  (row j: the query y_j)
     m = min(int(n), P)
     idx = np.empty(m, dtype=np.int64)
     idx[0] = start
-    d = rows @ cols[start]                                                      # [P] squared distance to the set
+    d = cols[start] @ rows_t                                                    # [P] squared distance to the set
     t = np.empty_like(d)
+    matmul, minimum, argmax = np.matmul, np.minimum, np.ndarray.argmax          # the loop is call-overhead bound
     for i in range(1, m):
-        j = int(d.argmax())
+        j = argmax(d)
         idx[i] = j
-        np.matmul(rows, cols[j], out=t)
-        np.minimum(d, t, out=d)
+        matmul(cols[j], rows_t, out=t)
+        minimum(d, t, out=d)
     if n > P:
         idx = np.resize(idx, int(n))
     return idx
