@@ -13,6 +13,8 @@ Convention:
                           weights), else random weights of the same architecture (timing only; flagged)
         icp60             the same crop/ordering, then ICP-60 (60 icosahedral starts, 30 iterations, scipy cKDTree)
                           against the model's canonical shape as template, best residual selected
+    Threads: ``threads`` is every backend's budget (torch ``set_num_threads``); onnxruntime runs a single object of a
+    light model on one of them (``PoseEstimator(adaptive_threads=True)``, the SDK default) unless asked not to.
     The "bound" is the model's analytic MACs divided by the measured single-MatMul peak (GMAC/s) of this CPU with the
     same thread count: the time a perfectly MatMul-bound implementation would need.
 """
@@ -132,15 +134,18 @@ def _torch_forward(est, checkpoint: str | None):
 
 
 def run_backend(backend: str, model_path: str, threads: int = 2, objects: int = 1, runs: int = 100,
-                warmup: int = 5, checkpoint: str | None = None, refine="auto") -> dict:
-    """Measure one backend in this process. Returns a row dict (end-to-end and per-stage percentiles, fps, rss)."""
+                warmup: int = 5, checkpoint: str | None = None, refine="auto", adaptive_threads: bool = True) -> dict:
+    """Measure one backend in this process. Returns a row dict (end-to-end and per-stage percentiles, fps, rss).
+
+    ``threads`` is the budget of every backend; onnxruntime follows ``PoseEstimator(adaptive_threads=...)`` within it
+    (the row's ``threads_used`` says what ran)."""
     from equipose import PoseEstimator
     from equipose import crop as C
 
     if backend not in BACKENDS:
         raise ValueError(f"backend must be one of {BACKENDS}, got {backend!r}")
     path = _int8_path(model_path) if backend == "onnxruntime-int8" else model_path
-    est = PoseEstimator(path, threads=threads, refine=refine)
+    est = PoseEstimator(path, threads=threads, refine=refine, adaptive_threads=adaptive_threads)
     frame, box = _sample_frame()
     boxes = [box] * objects
     note, parity = "", None
@@ -184,6 +189,7 @@ def run_backend(backend: str, model_path: str, threads: int = 2, objects: int = 
     row["model_mb"] = os.path.getsize(path) / 2 ** 20 if backend.startswith("onnx") else None
     row["stages"] = {k: percentiles([s[k] for s in samples]) for k in STAGES}
     row["runs"], row["threads"], row["objects"], row["refine"] = runs, threads, objects, est.refine
+    row["threads_used"] = 1 if (backend.startswith("onnxruntime") and est.single_thread and objects == 1) else threads
     if note:
         row["note"] = note
     if parity is not None:
@@ -194,9 +200,10 @@ def run_backend(backend: str, model_path: str, threads: int = 2, objects: int = 
 # ----------------------------------------------------------------------------------------------------------------------
 # Orchestration: one subprocess per backend
 
-def _run_isolated(backend, model_path, threads, objects, runs, warmup, checkpoint, refine="auto") -> dict:
+def _run_isolated(backend, model_path, threads, objects, runs, warmup, checkpoint, refine="auto",
+                  adaptive_threads=True) -> dict:
     cmd = [sys.executable, "-m", "equipose.bench", backend, model_path, str(threads), str(objects), str(runs),
-           str(warmup), checkpoint or "", str(refine)]
+           str(warmup), checkpoint or "", str(refine), "1" if adaptive_threads else "0"]
     env = dict(os.environ, OMP_NUM_THREADS=str(threads), DEPTHAI_LEVEL="error")
     p = subprocess.run(cmd, capture_output=True, text=True, env=env)
     if p.returncode != 0:
@@ -206,8 +213,10 @@ def _run_isolated(backend, model_path, threads, objects, runs, warmup, checkpoin
 
 
 def run_benchmark(model_path: str, backends=BACKENDS, threads: int = 2, objects: int = 1, runs: int = 100,
-                  warmup: int = 5, checkpoint: str | None = None, isolate: bool = True, refine="auto") -> dict:
-    """All requested backends on the same frame; returns ``{"model", "threads", "points", "objects", "rows", ...}``."""
+                  warmup: int = 5, checkpoint: str | None = None, isolate: bool = True, refine="auto",
+                  adaptive_threads: bool = True) -> dict:
+    """All requested backends on the same frame; returns ``{"model", "threads", "points", "objects", "rows",
+    "ratios", ...}``; ``ratios[backend]`` = its end-to-end and inference-stage p50 ÷ onnxruntime-fp32's."""
     from equipose import PoseEstimator
     from equipose.presets import ModelConfig, total_macs
 
@@ -218,14 +227,19 @@ def run_benchmark(model_path: str, backends=BACKENDS, threads: int = 2, objects:
     rows = []
     for b in backends:
         row = (_run_isolated if isolate else lambda *a: run_backend(*a))(b, str(model_path), threads, objects, runs,
-                                                                         warmup, checkpoint, refine)
+                                                                         warmup, checkpoint, refine,
+                                                                         adaptive_threads)
         rows.append(row)
         print(f"  measured {b}: " + (f"p50 {row['p50_ms']:.1f} ms" if "p50_ms" in row else row["error"]),
               file=sys.stderr, flush=True)
+    ref = next((r for r in rows if r.get("backend") == "onnxruntime-fp32" and "p50_ms" in r), None)
+    ratios = {r["backend"]: {"end_to_end": r["p50_ms"] / ref["p50_ms"],
+                             "inference": r["stages"]["inference"]["p50_ms"] / ref["stages"]["inference"]["p50_ms"]}
+              for r in rows if ref and "p50_ms" in r}
     return {"model": str(model_path), "preset": cfg.name, "threads": threads, "points": est.num_points,
-            "refine": rows[0].get("refine") if rows else None,
+            "refine": rows[0].get("refine") if rows else None, "adaptive_threads": adaptive_threads,
             "objects": objects, "macs": macs, "matmul_peak_gmacs": peak, "bound_ms": macs * objects / peak / 1e6,
-            "rows": rows}
+            "rows": rows, "ratios": ratios}
 
 
 def format_table(result: dict) -> str:
@@ -237,26 +251,29 @@ def format_table(result: dict) -> str:
              f", ICP re-scoring of {result.get('refine') or 0} hypotheses (selection stage)",
              f"MatMul peak {result['matmul_peak_gmacs']:.1f} GMAC/s → bound {result['bound_ms']:.2f} ms/frame",
              f"{'backend':<18} {'p50 ms':>8} {'bound':>6} {'p95 ms':>8} {'max ms':>8} {'FPS':>8} {'RSS MB':>8} "
-             f"{'size MB':>8} {'× fp32':>7}  {'crop':>6} {'fps':>6} {'infer':>7} {'select':>6}"]
+             f"{'size MB':>8} {'× fp32':>7}  {'crop':>6} {'fps':>6} {'infer':>7} {'× fp32':>7} {'select':>6} "
+             f"{'threads':>7}"]
     for r in rows:
         if "error" in r:
             lines.append(f"{r['backend']:<18} unavailable: {r['error']}")
             continue
         ratio = r["p50_ms"] / ref["p50_ms"] if ref else float("nan")
+        inf_ratio = (r["stages"]["inference"]["p50_ms"] / ref["stages"]["inference"]["p50_ms"]) if ref else float("nan")
         s = r["stages"]
         size = f"{r['model_mb']:.2f}" if r.get("model_mb") else "-"
         bound = f"{result['bound_ms']:.2f}" if r["backend"] != "icp60" else "-"    # the network's MatMul bound
         lines.append(f"{r['backend']:<18} {r['p50_ms']:>8.2f} {bound:>6} {r['p95_ms']:>8.2f} {r['max_ms']:>8.2f} {r['fps']:>8.1f} "
                      f"{r['peak_rss_mb']:>8.0f} {size:>8} {ratio:>7.2f}  {s['crop']['p50_ms']:>6.2f} "
-                     f"{s['fps']['p50_ms']:>6.2f} {s['inference']['p50_ms']:>7.2f} {s['selection']['p50_ms']:>6.2f}"
+                     f"{s['fps']['p50_ms']:>6.2f} {s['inference']['p50_ms']:>7.2f} {inf_ratio:>7.2f} "
+                     f"{s['selection']['p50_ms']:>6.2f} {r.get('threads_used', r['threads']):>7}"
                      + (f"   ({r['note']})" if r.get("note") else ""))
     return "\n".join(lines)
 
 
 def _worker_main(argv):
-    backend, model, threads, objects, runs, warmup, ckpt, refine = argv
+    backend, model, threads, objects, runs, warmup, ckpt, refine, adaptive = argv
     row = run_backend(backend, model, int(threads), int(objects), int(runs), int(warmup), ckpt or None,
-                      "auto" if refine == "auto" else int(refine))
+                      "auto" if refine == "auto" else int(refine), adaptive_threads=adaptive == "1")
     sys.stdout.write(json.dumps(row) + "\n")
 
 

@@ -41,8 +41,9 @@ class PoseEstimator:
         threads: onnxruntime intra-op thread budget (None = onnxruntime's default, the physical core count).
         adaptive_threads: run single objects of a light model (< ``LIGHT_MODEL_MACS`` per object: every edge preset) on
             one thread and batches on the whole budget. Such a graph is hundreds of small kernels, where handing each
-            one to a second thread costs more than it saves (edge preset, 2 cores: one object 2.07 ms on 1 thread vs
-            2.87 ms on 2; two objects 4.13 vs 2.99 ms). Attribute ``single_thread``: whether it applies.
+            one to a second thread usually costs more than it saves (edge preset, 2 cores: one object 2.1 ms on one
+            thread, 2.6–3.1 ms on two in most processes; two objects 4.2 vs 3.0 ms; docs/benchmarks.md, session 6).
+            Attribute ``single_thread``: whether it applies.
         crop_options: defaults for ``equipose.crop.crop_points`` (e.g. ``{"max_depth": 2.0}``).
         top_k: hypotheses listed in each result.
         refine: ICP re-scoring (``equipose.refine``): the ``refine`` best hypotheses are refined by ICP against the

@@ -28,6 +28,11 @@ def test_bench_all_backends(tiny_model, tmp_path):
     # the torch backend rebuilt the export's weights from its seed: same outputs as the ONNX file
     assert rows["torch"]["note"].startswith("same weights") and rows["torch"]["parity_max_abs"] < 1e-3
     assert res["bound_ms"] > 0 and res["macs"] > 0
+    assert all(r["threads_used"] == 1 for r in rows.values())
+    fp32, torch_row = rows["onnxruntime-fp32"], rows["torch"]
+    assert res["ratios"]["torch"]["end_to_end"] == pytest.approx(torch_row["p50_ms"] / fp32["p50_ms"])
+    assert res["ratios"]["torch"]["inference"] == pytest.approx(
+        torch_row["stages"]["inference"]["p50_ms"] / fp32["stages"]["inference"]["p50_ms"])
     table = format_table(res)
     assert "onnxruntime-int8" in table and "× fp32" in table
 
@@ -43,6 +48,18 @@ def test_bench_cli_json(tiny_model, tmp_path):
     assert [r["backend"] for r in data["rows"]] == ["onnxruntime-fp32", "icp60"]
     for r in data["rows"]:
         assert {"backend", "p50_ms", "p95_ms", "max_ms", "fps", "peak_rss_mb"} <= set(r)
+
+
+def test_bench_threads_used_follows_the_adaptive_policy(tiny_model, tmp_path):
+    """A light model's single object runs on one onnxruntime thread unless --fixed-threads; torch keeps the budget."""
+    for flag, expect in (([], 1), (["--fixed-threads"], 2)):
+        out = tmp_path / f"t{expect}.json"
+        p = subprocess.run([sys.executable, "-m", "equipose.cli", "bench", "--model", str(tiny_model), "--threads", "2",
+                            "--runs", "2", "--warmup", "1", "--compare", "", "--json", str(out), *flag],
+                           capture_output=True, text=True)
+        assert p.returncode == 0, p.stderr
+        data = json.loads(out.read_text())
+        assert data["adaptive_threads"] is (not flag) and data["rows"][0]["threads_used"] == expect
 
 
 def test_bench_cli_rejects_bad_compare(tiny_model):
