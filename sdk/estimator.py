@@ -43,7 +43,7 @@ class PoseEstimator:
             one thread and batches on the whole budget. Such a graph is hundreds of small kernels, where handing each
             one to a second thread usually costs more than it saves (edge preset, 2 cores: one object 2.1 ms on one
             thread, 2.6–3.1 ms on two in most processes; two objects 4.2 vs 3.0 ms; docs/benchmarks.md, session 6).
-            Attribute ``single_thread``: whether it applies.
+            Attribute ``single_thread``: whether it applies (the 1-thread session is then opened with the main one).
         crop_options: defaults for ``equipose.crop.crop_points`` (e.g. ``{"max_depth": 2.0}``).
         top_k: hypotheses listed in each result.
         refine: ICP re-scoring (``equipose.refine``): the ``refine`` best hypotheses are refined by ICP against the
@@ -106,7 +106,8 @@ class PoseEstimator:
         self._check_io(path.name)
         macs = total_macs(ModelConfig.from_dict(self.metadata["model_config"]), partial=self.partial)
         self.single_thread = bool(adaptive_threads) and threads != 1 and macs < LIGHT_MODEL_MACS
-        self._single_session = None                                             # opened on the first single object
+        # opened now, so that the first single-object call does not pay for it (≈ 20 ms)
+        self._single_session = self._open_session(1) if self.single_thread else None
 
     def _open_session(self, threads: int | None):
         import onnxruntime as ort
@@ -164,8 +165,6 @@ class PoseEstimator:
             return {k: np.concatenate([p[k] for p in parts]) for k in OUTPUT_NAMES}
         session = self.session
         if self.single_thread and x.shape[0] == 1:
-            if self._single_session is None:
-                self._single_session = self._open_session(1)
             session = self._single_session
         try:
             outs = session.run(list(OUTPUT_NAMES), {INPUT_NAME: x})
