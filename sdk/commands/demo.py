@@ -16,7 +16,8 @@ __all__ = ["add_arguments", "run"]
 def add_arguments(p):
     p.add_argument("--out", default="runs/demo", help="folder for overlays and results (default: runs/demo)")
     p.add_argument("--model", default=None, help="model to use instead of the bundled one")
-    p.add_argument("--threads", type=int, default=None, help="onnxruntime threads (default: all cores)")
+    p.add_argument("--threads", type=int, default=None, help="onnxruntime thread budget (default: all cores; a single object "
+                   "of a light model runs on one)")
     p.add_argument("--boxes", action="store_true", help="use the sample's annotated boxes instead of auto crop")
 
 

@@ -48,7 +48,8 @@ def add_arguments(p):
     g.add_argument("--auto", action="store_true", help="find objects on a table automatically (plane + clusters)")
     p.add_argument("--out", "-o", help="folder for overlay PNGs and results.jsonl")
     p.add_argument("--json", action="store_true", help="print one JSON object per frame instead of text lines")
-    p.add_argument("--threads", type=int, default=None, help="onnxruntime threads (default: all cores)")
+    p.add_argument("--threads", type=int, default=None, help="onnxruntime thread budget (default: all cores; a single object "
+                   "of a light model runs on one)")
     p.add_argument("--max-frames", type=int, default=None, help="stop after this many frames")
     p.add_argument("--smoothing", type=float, default=0.0, help="temporal smoothing α in [0, 1) (default 0: raw)")
 
