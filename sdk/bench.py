@@ -23,7 +23,6 @@ from __future__ import annotations
 import json
 import os
 import resource
-import statistics
 import subprocess
 import sys
 import time
@@ -60,7 +59,6 @@ def matmul_peak_gmacs(threads: int, size: int = 512, runs: int = 20) -> float:
     """
     a = np.random.default_rng(0).standard_normal((size, size)).astype(np.float32)
     try:
-        import onnx
         from onnx import TensorProto, helper
         import onnxruntime as ort
         g = helper.make_graph([helper.make_node("MatMul", ["a", "b"], ["c"])], "mm",

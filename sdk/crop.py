@@ -141,7 +141,7 @@ def depth_to_metres(depth, depth_unit="mm", *, check_plausible: bool = True) -> 
             raw = med / scale
             hint = ""
             if med < lo and scale >= 1e-3:
-                hint = f" — values look like metres; pass depth_unit='m'" if raw < 30 else ""
+                hint = " — values look like metres; pass depth_unit='m'" if raw < 30 else ""
             elif med > hi and scale >= 1.0:
                 hint = " — values look like millimetres; pass depth_unit='mm'"
             raise DepthUnitError(

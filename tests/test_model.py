@@ -4,7 +4,6 @@ import pytest
 
 torch = pytest.importorskip("torch")
 
-from equipose import icosahedral as I  # noqa: E402
 from equipose.presets import count_params, get_preset  # noqa: E402
 from equipose.testing import assert_equivariant, torch_layer_fn, torch_model_fn  # noqa: E402
 from equipose.train import EquiPoseNet, chamfer_min_of_60_loss  # noqa: E402

@@ -65,7 +65,7 @@ def main():
         if i >= args.warmup:
             for k, v in r.items():
                 rows.setdefault(k, []).append(v)
-    print(f"\nsingle box          wall median   p90 | thread-CPU median   p90  (ms)")
+    print("\nsingle box          wall median   p90 | thread-CPU median   p90  (ms)")
     tot_w, tot_c = 0.0, 0.0
     for k, v in rows.items():
         a = np.asarray(v)

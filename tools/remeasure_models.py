@@ -8,7 +8,6 @@ mode) and ICP sample count are read from the file's stored metrics. Prints old â
 
 Usage: python tools/remeasure_models.py [NAME ...]
 """
-import json
 import pathlib
 import subprocess
 import sys

@@ -24,7 +24,7 @@ from torch import nn
 from equipose import icosahedral
 from equipose.presets import LayerSpec
 
-from .layers import SeparableSO3Block, gather_rows, hat_weights, kernel_aug
+from .layers import SeparableSO3Block, hat_weights, kernel_aug
 
 __all__ = ["QuotientInterConv", "QuotientIntraConv", "QuotientBlock", "lift_pairs", "V", "KERNEL_CLASSES",
            "VERTEX_CLASSES"]

@@ -11,6 +11,8 @@ import json
 import pathlib
 import sys
 
+import numpy as np
+
 from equipose.errors import ConfigError, RegionError
 
 __all__ = ["add_arguments", "run", "parse_box", "load_mask"]
@@ -107,7 +109,6 @@ def run(args) -> int:
 
 def _write_overlay(path, rec):
     import cv2
-    import numpy as np
 
     from equipose.crop import check_intrinsics
     from equipose.overlay import to_bgr

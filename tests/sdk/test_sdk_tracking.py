@@ -1,6 +1,5 @@
 """Tracking: the stream continues past bad frames; ids, smoothing and hypothesis re-use."""
 import numpy as np
-import pytest
 
 from conftest import K_VGA, sphere_scene, tabletop_scene
 from equipose.result import FrameError
