@@ -17,7 +17,7 @@ def test_registry():
 
 def test_can_sources_are_upright_and_metric(data_root):
     src = tabletop_sources(data_root, "can", "train")
-    meshes = [(name, complete) for name, shape, complete in src if not name.startswith("modelnet/")]
+    meshes = [(name, complete) for name, shape, complete in src if not name.startswith(("modelnet/", "procedural/"))]
     assert len(meshes) == len(TABLETOP["can"].meshes) + len(TABLETOP["can"].scans)
     for name, p in meshes:
         ext = p.max(0) - p.min(0)
@@ -28,6 +28,10 @@ def test_can_sources_are_upright_and_metric(data_root):
     assert lo - 1e-9 <= min(radii) and max(radii) <= hi + 1e-9
     test = tabletop_sources(data_root, "can", "test")
     assert all(n.startswith("modelnet/") for n, _, _ in test)                   # metric meshes never in test
+    cyl = [(shape, c) for n, shape, c in src if n.startswith("procedural/cylinder_")]
+    assert len(cyl) == TABLETOP["can"].cylinders
+    squat = [c for _, c in cyl if np.ptp(c[:, 2]) < np.ptp(c[:, 0])]            # wider than tall: tins
+    assert 0.3 * len(cyl) < len(squat) < 0.7 * len(cyl)
 
 
 def test_tabletop_cache_layout(data_root, tmp_path):
@@ -53,3 +57,33 @@ def test_icp_templates_are_metric_for_tabletop(data_root):
     r = np.linalg.norm(clouds[0], axis=1).max()
     assert abs(r - np.mean(TABLETOP["cup"].radius_m)) < 1e-6
     assert abs(np.linalg.norm(_icp_template_clouds(data_root, "airplane")[0], axis=1).max() - 1.0) < 1e-3
+
+
+def test_procedural_cylinders_are_closed_and_upright():
+    from equipose.train.shapes import cylinder_mesh, cylinder_proportions, cylinder_surface
+    rng = np.random.default_rng(0)
+    p = cylinder_surface(0.05, 0.02, 4000, rng)
+    rho = np.hypot(p[:, 0], p[:, 1])
+    on_side = np.isclose(rho, 0.05)
+    on_cap = np.isclose(np.abs(p[:, 2]), 0.01) & (rho <= 0.05 + 1e-12)
+    assert np.all(on_side | on_cap) and abs(p[:, 2]).max() <= 0.01 + 1e-12
+    # area weighting: side 2πrh vs caps 2πr² → a squat tin has most points on its caps
+    assert abs(on_side.mean() - 0.02 / (0.02 + 0.05)) < 0.03
+    V, F = cylinder_mesh(0.05, 0.02, segments=32)
+    edges = np.sort(np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]]), axis=1)
+    _, counts = np.unique(edges, axis=0, return_counts=True)
+    assert np.all(counts == 2)                                                  # closed (watertight) surface
+    tri = V[F]                                                                  # outward normals
+    n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    assert np.all((n * tri.mean(1)).sum(1) > 0)
+    rh = cylinder_proportions(200, seed=1)
+    hd = rh[:, 1] / (2 * rh[:, 0])
+    assert 0.25 <= hd.min() and hd.max() <= 4.0 and 0.3 < np.mean(hd < 1) < 0.7
+
+
+def test_can_complete_clouds_add_cylinders(data_root):
+    from equipose.train.data import load_complete, load_modelnet
+    clouds, ids = load_complete(data_root, "can", "test", limit=5)
+    bottles, _ = load_modelnet(data_root, "bottle", "test", limit=5)
+    assert len(clouds) == 10 and ids[-1] == "cylinder_4" and np.array_equal(clouds[:5], bottles)
+    np.testing.assert_allclose(np.linalg.norm(clouds[5:], axis=2).max(1), 1.0, atol=1e-6)

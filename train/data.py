@@ -64,6 +64,31 @@ def load_modelnet(root, category: str, split: str, limit: int | None = None) -> 
     return np.stack([np.load(f).astype(np.float32) for f in files]), [f.stem for f in files]
 
 
+# Complete-shape categories built from another ModelNet category plus procedural closed cylinders (train/shapes.py):
+# ``can`` = ModelNet bottles (nearly all taller than wide) + cylinders of every proportion, h/d 0.25–4.
+PROCEDURAL_COMPLETE = {"can": {"modelnet": "bottle", "cylinders": {"train": 200, "test": 40}}}
+
+
+def load_complete(root, category: str, split: str, limit: int | None = None) -> tuple:
+    """Complete clouds of a category: (clouds [S, 1024, 3] float32 at max radius 1, as the ModelNet files, ids [S]).
+
+    A ModelNet40 category as is; ``can`` = the ModelNet bottles followed by seeded procedural cylinders (ids
+    ``cylinder_K``). ``limit`` keeps the first K of each part.
+    """
+    spec = PROCEDURAL_COMPLETE.get(category)
+    if spec is None:
+        return load_modelnet(root, category, split, limit)
+    from .shapes import cylinder_proportions, cylinder_surface
+    clouds, ids = load_modelnet(root, spec["modelnet"], split, limit)
+    n = spec["cylinders"][split] if limit is None else min(limit, spec["cylinders"][split])
+    rng = np.random.default_rng([TEST_SEED, 0 if split == "train" else 1, 5])
+    cyl = []
+    for k, (r, h) in enumerate(cylinder_proportions(n, seed=[TEST_SEED, 0 if split == "train" else 1, 6])):
+        p = cylinder_surface(r, h, clouds.shape[1], rng)
+        cyl.append((p / np.linalg.norm(p, axis=1).max()).astype(np.float32))      # max radius 1, like the files
+    return np.concatenate([clouds, np.stack(cyl)]) if cyl else clouds, list(ids) + [f"cylinder_{k}" for k in range(n)]
+
+
 def _bbox_diag(p: np.ndarray) -> float:
     return float(np.linalg.norm(p.max(0) - p.min(0)))
 
@@ -79,7 +104,7 @@ class ModelNetComplete:
 
     def __init__(self, root, category: str, split: str, num_points: int, train: bool, scale: float = MODELNET_SCALE,
                  rotations_per_instance: int = TEST_ROTATIONS, seed: int = TEST_SEED, limit: int | None = None):
-        self.clouds, self.ids = load_modelnet(root, category, split, limit)          # [S, 1024, 3]
+        self.clouds, self.ids = load_complete(root, category, split, limit)          # [S, 1024, 3]
         self.category, self.split, self.train, self.scale = category, split, train, float(scale)
         self.num_points = int(num_points)
         self.diags = np.array([_bbox_diag(c) for c in self.clouds]) / self.scale

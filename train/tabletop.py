@@ -7,7 +7,8 @@ Convention:
     Units: metres everywhere in the cache; the category's ``scale`` (metres per model unit) maps them to model units.
     Camera: the renderer's OpenCV pinhole (``equipose.train.render``); the object centre is 0.5–1.4 m away (the
     range of a tabletop RGB-D camera), laterally offset by N(0, (0.12·d)²) per axis; rotations uniform on SO(3).
-    Splits: train = ModelNet train shapes + every metric mesh / scan; test = ModelNet test shapes only (their frame is
+    Splits: train = ModelNet train shapes + every metric mesh / scan (+ ``cylinders`` procedural closed cylinders of
+    every proportion, ``train/shapes.py``); test = ModelNet test shapes only (their frame is
     the category frame, so they also serve calibration and the paper-style table). The metric meshes are never in test.
     The cache layout is ``equipose.train.data.RenderedPartial``'s.
 """
@@ -34,6 +35,7 @@ class TabletopSpec:
     scans: tuple = ()                              # YCB-Video model points (points.xyz, metres), splatted as surfels
     train_limit: int | None = None                 # ModelNet train shapes used (None = all)
     test_limit: int | None = None                  # ModelNet test shapes used
+    cylinders: int = 0                             # procedural closed cylinders added to train (train/shapes.py)
     notes: str = ""
 
 
@@ -55,7 +57,7 @@ TABLETOP = {
                                 (f"{_O}/bleach_cleanser/visual.ply", "none"), (f"{_O}/shampoo/visual.ply", "y_up"),
                                 (f"{_O}/conditioner/visual.ply", "none"), (f"{_O}/blue_moon/visual.ply", "none")),
                         scans=(f"{_P}/005_tomato_soup_can/points.xyz", f"{_P}/002_master_chef_can/points.xyz"),
-                        notes="cylindrical cans and bottles; the axis sign is not defined"),
+                        cylinders=150, notes="cylindrical cans and bottles; the axis sign is not defined"),
 }
 
 _UP = {"none": np.eye(3), "y_up": np.array([[1.0, 0, 0], [0, 0, -1.0], [0, 1.0, 0]])}   # y → z
@@ -98,12 +100,26 @@ def tabletop_sources(root, category: str, split: str, seed: int = 0) -> list:
         p = p - p.mean(0)
         n, r = surfels_from_points(p)
         out.append((rel, {"points": p, "normals": n, "radii": r}, p))
+    if spec.cylinders:                                                   # tins and tubes of every proportion
+        from .shapes import cylinder_mesh, cylinder_proportions, cylinder_surface
+        crng = np.random.default_rng([seed, 0, 78])
+        for k, (r, h) in enumerate(cylinder_proportions(spec.cylinders, seed=[seed, 0, 79])):
+            V, F = cylinder_mesh(r, h)
+            out.append((f"procedural/cylinder_{k}", {"vertices": V, "faces": F}, cylinder_surface(r, h, 2048, crng)))
     return out
 
 
 def _views_for(name: str, views: int, split: str) -> int:
-    """Metric meshes and scans are few, so each gets more views than a ModelNet instance."""
-    return views if name.startswith("modelnet/") or split != "train" else views * 8
+    """Metric meshes and scans are few, so each gets more views than a ModelNet instance (or a procedural shape)."""
+    return views if name.startswith(("modelnet/", "procedural/")) or split != "train" else views * 8
+
+
+def _spec_key(spec: TabletopSpec, split: str) -> dict:
+    """The spec fields that decide a split's sources (procedural cylinders only enter train), for the cache key."""
+    d = asdict(spec)
+    if split != "train" or not spec.cylinders:
+        d.pop("cylinders")
+    return d
 
 
 def ensure_tabletop_cache(root, category: str, split: str, cache_dir=None, views: int = 10, seed: int = 0,
@@ -122,7 +138,7 @@ def ensure_tabletop_cache(root, category: str, split: str, cache_dir=None, views
     key, path = keyed_cache_path(cache_dir, f"tabletop_{category}_{split}_v{views}",
                                  {"tabletop": category, "split": split, "views": views, "seed": seed,
                                   "distance_m": list(distance_m), "lateral": lateral, "limit": limit,
-                                  "spec": asdict(spec), "settings": asdict(RenderSettings()), "v": 1})
+                                  "spec": _spec_key(spec, split), "settings": asdict(RenderSettings()), "v": 1})
     if path.is_file():
         return path
     sources = tabletop_sources(root, category, split, seed)[:limit]
