@@ -155,3 +155,16 @@ def test_knn_prefix_sharing_needs_and_gets_ordered_search(rng):
     L = cfg.layers[small[0]]
     ref = knn_indices(x[:, :L.points_in], x[:, :L.points_out], L.neighbours, ordered=False)
     assert torch.equal(shared[small[0]].sort(-1).values, ref.sort(-1).values)   # the 12 nearest, not any 12 of 16
+
+
+def test_axial_symmetry_loss_prefers_the_symmetry_axis_on_z():
+    from equipose.train.model import axial_symmetry_loss
+    from equipose.train.shapes import cylinder_surface
+    rng = np.random.default_rng(0)
+    tin = torch.tensor(cylinder_surface(0.3, 0.1, 256, rng)[None], dtype=torch.float32)   # squat, axis on z
+    sideways = tin[..., [2, 1, 0]].clone().requires_grad_(True)                           # axis on x
+    upright = axial_symmetry_loss(tin, np.random.default_rng(1))
+    lying = axial_symmetry_loss(sideways, np.random.default_rng(1))
+    assert lying > 3 * upright
+    lying.backward()
+    assert sideways.grad is not None and torch.isfinite(sideways.grad).all() and sideways.grad.abs().sum() > 0

@@ -64,6 +64,17 @@ def test_train_resume_calibrate_eval(tmp_path, data_root, mode):
     assert b["training"]["history"][-1]["train_minutes"] > 0
 
 
+def test_symmetric_category_trains_with_the_axial_symmetry_prior(tmp_path, data_root):
+    """can = ModelNet bottles + procedural cylinders; --symmetry-weight adds the canonical-shape symmetry loss."""
+    out = tmp_path / "can"
+    assert main(["train", "--category", "can", "--mode", "complete", "--data-root", str(data_root), "--preset", "tiny",
+                 "--batch-size", "2", "--train-limit", "3", "--val-size", "10", "--val-every", "2", "--steps", "2",
+                 "--symmetry-weight", "1.0", "--out", str(out)]) == 0
+    ck = load_checkpoint(out / "latest.pt")
+    assert ck["step"] == 2 and ck["symmetry"] == "continuous:z"
+    assert ck["training"]["config"]["symmetry_weight"] == 1.0
+
+
 def test_ddp_two_processes_gloo(tmp_path, data_root):
     out = tmp_path / "ddp"
     cmd = [sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc_per_node", "2",

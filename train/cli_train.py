@@ -42,6 +42,10 @@ def add_arguments(p) -> None:
     p.add_argument("--select-weight", dest="select_weight", type=float,
                    help="distillation: weight of the cross-entropy that makes the student's own score pick the best "
                    "hypothesis (default 0)")
+    p.add_argument("--symmetry-weight", dest="symmetry_weight", type=float,
+                   help="complete mode, rotationally symmetric category: weight of the loss that keeps the predicted "
+                   "canonical shape symmetric about its z axis, so that z is every instance's symmetry axis rather "
+                   "than its longest direction (default 0; no labels involved)")
     p.add_argument("--minutes", type=float,
                    help="wall-clock budget: stop (validate, save) once this invocation's training steps took this many "
                    "minutes, validation excluded; --steps still caps it (equal-budget comparisons of presets)")

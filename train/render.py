@@ -346,10 +346,16 @@ def ensure_cache(root, category: str, split: str, cache_dir=None, limit: int | N
     return path
 
 
+# Version of the render → crop pipeline whose output a cache holds; part of every cache key. Bump it whenever the
+# renderer or ``equipose.crop`` changes the points it produces. 2: caches written before session 6 came from an older
+# crop (adaptive plane RANSAC, window crop) and differ from a fresh render by a few points per view.
+PIPELINE_VERSION = 2
+
+
 def keyed_cache_path(cache_dir, stem: str, settings: dict) -> tuple:
-    """(settings JSON key, ``<cache_dir>/<stem>_<sha1(key)[:10]>.npz``); creates the folder. Every setting is in the
-    key, so a changed setting names a new cache."""
-    key = json.dumps(settings, sort_keys=True, default=str)
+    """(settings JSON key, ``<cache_dir>/<stem>_<sha1(key)[:10]>.npz``); creates the folder. Every setting and the
+    ``PIPELINE_VERSION`` are in the key, so a changed setting or pipeline names a new cache."""
+    key = json.dumps({**settings, "pipeline": PIPELINE_VERSION}, sort_keys=True, default=str)
     cache_dir = pathlib.Path(cache_dir) if cache_dir else default_cache_dir()
     cache_dir.mkdir(parents=True, exist_ok=True)
     return key, cache_dir / f"{stem}_{hashlib.sha1(key.encode()).hexdigest()[:10]}.npz"

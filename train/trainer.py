@@ -31,7 +31,7 @@ from .inference import calibrate_model, predict_torch
 from .calibration import apply_calibration
 from .metrics import rotation_errors
 from .distill import complete_clouds, distillation_loss, teacher_targets
-from .model import EquiPoseNet, chamfer_min_of_60_loss
+from .model import EquiPoseNet, axial_symmetry_loss, chamfer_min_of_60_loss
 
 __all__ = ["TrainConfig", "train"]
 
@@ -65,6 +65,7 @@ class TrainConfig:
     teacher: str = ""                     # partial only: distil from this complete-shape checkpoint (train/distill.py)
     teacher_refine: int = 5               # teacher's ICP re-scoring of its k best hypotheses (0 = plain network)
     select_weight: float = 0.0            # distillation: weight of the hypothesis-selection cross-entropy
+    symmetry_weight: float = 0.0          # complete, symmetric category: weight of model.axial_symmetry_loss
     minutes: float = 0.0                  # > 0: stop once the training steps (validation excluded) took this many
                                           # minutes, validating and saving there (equal-budget comparisons)
 
@@ -248,7 +249,10 @@ def train(cfg: TrainConfig, resume: bool = False, log=print) -> pathlib.Path:
         batch = collate([train_ds.sample(int(i), rng) for i in idx])
         x = torch.from_numpy(batch["points"]).to(device)
         if targets is None:
-            loss = chamfer_min_of_60_loss(net(x, return_aux=True))
+            pred = net(x, return_aux=True)
+            loss = chamfer_min_of_60_loss(pred)
+            if cfg.symmetry_weight and symmetry != "none":
+                loss = loss + cfg.symmetry_weight * axial_symmetry_loss(pred["canonical_shape"], rng)
         else:
             v = torch.from_numpy(idx).to(device)
             loss, _ = distillation_loss(net(x, return_aux=True), targets["shapes"][targets["instance"][v]],
