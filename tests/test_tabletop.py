@@ -87,3 +87,5 @@ def test_can_complete_clouds_add_cylinders(data_root):
     bottles, _ = load_modelnet(data_root, "bottle", "test", limit=5)
     assert len(clouds) == 10 and ids[-1] == "cylinder_4" and np.array_equal(clouds[:5], bottles)
     np.testing.assert_allclose(np.linalg.norm(clouds[5:], axis=2).max(1), 1.0, atol=1e-6)
+    only, ids = load_complete(data_root, "cylinder", "train", limit=3)                # procedural cylinders only
+    assert only.shape == (3, 1024, 3) and ids == ["cylinder_0", "cylinder_1", "cylinder_2"]

@@ -28,7 +28,7 @@ __all__ = ["default_data_root", "modelnet_files", "load_modelnet", "ModelNetComp
            "TEST_SEED"]
 
 MODELNET_SCALE = 2.0               # file units per model unit: max radius 1 → 0.5
-SYMMETRIC_CATEGORIES = ("bottle", "bowl", "cup", "can")
+SYMMETRIC_CATEGORIES = ("bottle", "bowl", "cup", "can", "cylinder")
 TEST_ROTATIONS = 5                 # paper protocol: 5 random rotations per test instance
 TEST_SEED = 2913
 
@@ -66,20 +66,24 @@ def load_modelnet(root, category: str, split: str, limit: int | None = None) -> 
 
 # Complete-shape categories built from another ModelNet category plus procedural closed cylinders (train/shapes.py):
 # ``can`` = ModelNet bottles (nearly all taller than wide) + cylinders of every proportion, h/d 0.25–4.
-PROCEDURAL_COMPLETE = {"can": {"modelnet": "bottle", "cylinders": {"train": 200, "test": 40}}}
+PROCEDURAL_COMPLETE = {"can": {"modelnet": "bottle", "cylinders": {"train": 200, "test": 40}},
+                       "cylinder": {"modelnet": None, "cylinders": {"train": 400, "test": 40}}}   # cylinders only
 
 
 def load_complete(root, category: str, split: str, limit: int | None = None) -> tuple:
     """Complete clouds of a category: (clouds [S, 1024, 3] float32 at max radius 1, as the ModelNet files, ids [S]).
 
     A ModelNet40 category as is; ``can`` = the ModelNet bottles followed by seeded procedural cylinders (ids
-    ``cylinder_K``). ``limit`` keeps the first K of each part.
+    ``cylinder_K``); ``cylinder`` = procedural cylinders only (experiments). ``limit`` keeps the first K of each part.
     """
     spec = PROCEDURAL_COMPLETE.get(category)
     if spec is None:
         return load_modelnet(root, category, split, limit)
     from .shapes import cylinder_proportions, cylinder_surface
-    clouds, ids = load_modelnet(root, spec["modelnet"], split, limit)
+    if spec["modelnet"]:
+        clouds, ids = load_modelnet(root, spec["modelnet"], split, limit)
+    else:
+        clouds, ids = np.zeros((0, 1024, 3), np.float32), []
     n = spec["cylinders"][split] if limit is None else min(limit, spec["cylinders"][split])
     rng = np.random.default_rng([TEST_SEED, 0 if split == "train" else 1, 5])
     cyl = []
