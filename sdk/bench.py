@@ -187,7 +187,7 @@ def run_backend(backend: str, model_path: str, threads: int = 2, objects: int = 
     row["model_mb"] = os.path.getsize(path) / 2 ** 20 if backend.startswith("onnx") else None
     row["stages"] = {k: percentiles([s[k] for s in samples]) for k in STAGES}
     row["runs"], row["threads"], row["objects"], row["refine"] = runs, threads, objects, est.refine
-    row["threads_used"] = 1 if (backend.startswith("onnxruntime") and est.single_thread and objects == 1) else threads
+    row["threads_used"] = 1 if backend.startswith("onnxruntime") and est.uses_single_thread(objects) else threads
     if note:
         row["note"] = note
     if parity is not None:
@@ -243,7 +243,6 @@ def run_benchmark(model_path: str, backends=BACKENDS, threads: int = 2, objects:
 def format_table(result: dict) -> str:
     """A text table of ``run_benchmark``'s result, with speed ratios against onnxruntime-fp32."""
     rows = result["rows"]
-    ref = next((r for r in rows if r.get("backend") == "onnxruntime-fp32" and "p50_ms" in r), None)
     lines = [f"model {result['model']} (preset {result['preset']}, N={result['points']}, "
              f"{result['macs'] / 1e9:.3f} GMAC/object), {result['threads']} thread(s), {result['objects']} object(s)/frame"
              f", ICP re-scoring of {result.get('refine') or 0} hypotheses (selection stage)",
@@ -255,8 +254,8 @@ def format_table(result: dict) -> str:
         if "error" in r:
             lines.append(f"{r['backend']:<18} unavailable: {r['error']}")
             continue
-        ratio = r["p50_ms"] / ref["p50_ms"] if ref else float("nan")
-        inf_ratio = (r["stages"]["inference"]["p50_ms"] / ref["stages"]["inference"]["p50_ms"]) if ref else float("nan")
+        ratios = result["ratios"].get(r["backend"], {})
+        ratio, inf_ratio = ratios.get("end_to_end", float("nan")), ratios.get("inference", float("nan"))
         s = r["stages"]
         size = f"{r['model_mb']:.2f}" if r.get("model_mb") else "-"
         bound = f"{result['bound_ms']:.2f}" if r["backend"] != "icp60" else "-"    # the network's MatMul bound

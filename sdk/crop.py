@@ -274,8 +274,8 @@ def organized_outlier_mask(points: np.ndarray, rows: np.ndarray, cols: np.ndarra
     grid of pitch ``step`` (the crop's subsampling). For each point the mean distance to its present grid neighbours
     is compared with mean + ``std_ratio`` · std of that statistic over all points; points with no neighbour at all
     are outliers (isolated flying pixels). Same criterion as ``statistical_outlier_mask`` but the neighbourhood
-    comes from the image instead of a k-d tree, as 8 whole-grid shifts (7–15× faster than the tree on a crop). Returns [P]
-    bool inliers.
+    comes from the image instead of a k-d tree, as 8 whole-grid shifts (7–15× faster than the tree on a crop).
+    Returns [P] bool inliers.
     """
     P = len(points)
     if P < 10:

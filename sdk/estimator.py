@@ -109,6 +109,10 @@ class PoseEstimator:
         # opened now, so that the first single-object call does not pay for it (≈ 20 ms)
         self._single_session = self._open_session(1) if self.single_thread else None
 
+    def uses_single_thread(self, batch: int) -> bool:
+        """Whether a run of ``batch`` objects goes to the 1-thread session (``adaptive_threads``)."""
+        return self.single_thread and batch == 1
+
     def _open_session(self, threads: int | None):
         import onnxruntime as ort
 
@@ -163,9 +167,7 @@ class PoseEstimator:
         if self.static_batch is not None and x.shape[0] != self.static_batch:   # fixed-batch export: loop
             parts = [self.run_model(x[i:i + 1]) for i in range(x.shape[0])]
             return {k: np.concatenate([p[k] for p in parts]) for k in OUTPUT_NAMES}
-        session = self.session
-        if self.single_thread and x.shape[0] == 1:
-            session = self._single_session
+        session = self._single_session if self.uses_single_thread(x.shape[0]) else self.session
         try:
             outs = session.run(list(OUTPUT_NAMES), {INPUT_NAME: x})
         except Exception as e:  # onnxruntime's own exception types (Fail, InvalidArgument, RuntimeException)

@@ -63,14 +63,15 @@ def _run(path, x) -> list:
     return s.run(None, {"points": x})
 
 
-def _copy_props(src, dst):
+def _write_with_props(graph_file, props_file, out):
+    """Write ``graph_file``'s graph with ``props_file``'s metadata props to ``out`` (atomically)."""
     import onnx
     from equipose.export.onnx_export import _write_atomic
-    a, b = onnx.load(str(src)), onnx.load(str(dst))
+    a, b = onnx.load(str(props_file)), onnx.load(str(graph_file))
     del b.metadata_props[:]
     for p in a.metadata_props:
         b.metadata_props.add(key=p.key, value=p.value)
-    _write_atomic(b, pathlib.Path(dst))
+    _write_atomic(b, pathlib.Path(out))
 
 
 def main(argv=None) -> int:
@@ -112,8 +113,7 @@ def main(argv=None) -> int:
                 continue
             if args.dry_run:
                 continue
-            _copy_props(path, new)
-            new.replace(path) if new.stat().st_dev == path.stat().st_dev else path.write_bytes(new.read_bytes())
+            _write_with_props(new, path, path)
             q = path.with_name(path.stem + ".int8.onnx")
             if q.exists():
                 q_new = pathlib.Path(tmp) / q.name
@@ -121,8 +121,7 @@ def main(argv=None) -> int:
                 old_q = _run(q, x)
                 new_q = _run(q_new, x)
                 qerr = max(float(np.abs(a - b).max()) for a, b in zip(old_q, new_q))
-                _copy_props(q, q_new)
-                q.write_bytes(q_new.read_bytes())
+                _write_with_props(q_new, q, q)
                 print(f"  {q.name}: re-quantised (max |Δ| to the old int8 file {qerr:.2e})")
     return 1 if failed else 0
 

@@ -85,9 +85,10 @@ def load_complete(root, category: str, split: str, limit: int | None = None) -> 
     else:
         clouds, ids = np.zeros((0, 1024, 3), np.float32), []
     n = spec["cylinders"][split] if limit is None else min(limit, spec["cylinders"][split])
-    rng = np.random.default_rng([TEST_SEED, 0 if split == "train" else 1, 5])
+    split_id = 0 if split == "train" else 1
+    rng = np.random.default_rng([TEST_SEED, split_id, 5])
     cyl = []
-    for k, (r, h) in enumerate(cylinder_proportions(n, seed=[TEST_SEED, 0 if split == "train" else 1, 6])):
+    for k, (r, h) in enumerate(cylinder_proportions(n, seed=[TEST_SEED, split_id, 6])):
         p = cylinder_surface(r, h, clouds.shape[1], rng)
         cyl.append((p / np.linalg.norm(p, axis=1).max()).astype(np.float32))      # max radius 1, like the files
     return np.concatenate([clouds, np.stack(cyl)]) if cyl else clouds, list(ids) + [f"cylinder_{k}" for k in range(n)]

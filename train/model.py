@@ -16,8 +16,6 @@ from __future__ import annotations
 
 import math
 
-import numpy as np
-
 import torch
 from torch import nn
 from torch.nn import functional as F
@@ -253,14 +251,13 @@ def chamfer_min_of_60_loss(out: dict, quat_weight: float = 0.1) -> torch.Tensor:
     return rec + quat_weight * reg
 
 
-
 def axial_symmetry_loss(shape: torch.Tensor, rng) -> torch.Tensor:
     """Label-free prior for rotationally symmetric categories: the canonical shape should look the same turned about
     its z axis. Symmetric chamfer (squared distances) between ``shape`` [B, M, 3] and its copy turned by one random
     angle in [45°, 135°] per sample (``rng``: numpy Generator; far from 0° and from the 180° turn that leaves a lying
-    cylinder unchanged); mean over the batch. Without it the min-of-60 loss is
-    as happy to put a squat tin's diameter on z as its axis (the network learns "longest direction = z")."""
-    a = torch.as_tensor(rng.uniform(np.pi / 4, 3 * np.pi / 4, shape.shape[0]), dtype=shape.dtype,
+    cylinder unchanged); mean over the batch. Without it the min-of-60 loss is as happy to put a squat tin's diameter
+    on z as its axis (the network learns "longest direction = z")."""
+    a = torch.as_tensor(rng.uniform(math.pi / 4, 3 * math.pi / 4, shape.shape[0]), dtype=shape.dtype,
                         device=shape.device)                                          # [B]
     c, s = torch.cos(a), torch.sin(a)
     turned = torch.stack([c[:, None] * shape[..., 0] - s[:, None] * shape[..., 1],
