@@ -3,6 +3,6 @@
 ``export_model`` / ``export_checkpoint`` / ``export_random_model`` write one self-describing ONNX file;
 ``quantize_int8`` writes the int8 copy. torch is imported only when an export runs.
 """
-from .onnx_export import (DEFAULT_OPSET, INPUT_NAME, OUTPUT_NAMES, export_checkpoint, export_model, update_metadata,  # noqa: F401
+from equipose.export.onnx_export import (DEFAULT_OPSET, INPUT_NAME, OUTPUT_NAMES, export_checkpoint, export_model, update_metadata,  # noqa: F401
                           export_random_model, op_type_counts)
-from .quantize import int8_path_for, quantize_int8  # noqa: F401
+from equipose.export.quantize import int8_path_for, quantize_int8  # noqa: F401

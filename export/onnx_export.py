@@ -22,8 +22,8 @@ import warnings
 
 import numpy as np
 
-from equipose.errors import ConfigError, ModelFormatError
-from equipose.metadata import encode_metadata
+from equipose.core.errors import ConfigError, ModelFormatError
+from equipose.core.metadata import encode_metadata
 
 __all__ = ["DEFAULT_OPSET", "OUTPUT_NAMES", "INPUT_NAME", "export_model", "export_random_model", "export_checkpoint", "update_metadata",
            "calibration_arrays", "op_type_counts"]
@@ -123,7 +123,7 @@ def export_model(model, path, *, category: str, scale: float, symmetry: str = "n
         model: ``equipose.train.EquiPoseNet`` (exported in eval mode; its training flag is restored).
         path: output ``.onnx`` file (parent folders are created; written atomically).
         category, scale (metres per model unit), symmetry, calibration ({"rotation", "translation"} or None),
-        random_init, training, metrics: written to ``metadata_props`` via ``equipose.metadata.encode_metadata``.
+        random_init, training, metrics: written to ``metadata_props`` via ``equipose.core.metadata.encode_metadata``.
         opset: ONNX opset of the default domain.
         verify: run the file once in onnxruntime on the export example and compare with torch (max abs ≤ 1e-4).
     Raises:
@@ -258,13 +258,13 @@ def export_checkpoint(checkpoint, path, *, category: str | None = None, scale: f
 
 def update_metadata(path, **values) -> pathlib.Path:
     """Rewrite metadata entries of an exported model in place (dicts are stored as JSON), e.g. ``metrics=`` after an
-    evaluation of that very file. The result is re-validated with ``equipose.metadata.decode_metadata``."""
+    evaluation of that very file. The result is re-validated with ``equipose.core.metadata.decode_metadata``."""
     import json
     import os
 
     import onnx
 
-    from equipose.metadata import decode_metadata
+    from equipose.core.metadata import decode_metadata
 
     path = pathlib.Path(path)
     try:

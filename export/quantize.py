@@ -17,7 +17,7 @@ import os
 import pathlib
 import tempfile
 
-from equipose.errors import ConfigError, ModelFormatError
+from equipose.core.errors import ConfigError, ModelFormatError
 
 __all__ = ["int8_path_for", "quantize_int8"]
 

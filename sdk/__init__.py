@@ -6,11 +6,11 @@ from __future__ import annotations
 
 __version__ = "0.1.0"
 
-from . import errors  # noqa: F401  (cheap, always available)
+from equipose import errors  # noqa: F401  (cheap, always available)
 
 _LAZY = {
-    "PoseEstimator": ("equipose.estimator", "PoseEstimator"),
-    "PoseResult": ("equipose.result", "PoseResult"),
+    "PoseEstimator": ("equipose.runtime.estimator", "PoseEstimator"),
+    "PoseResult": ("equipose.runtime.result", "PoseResult"),
 }
 
 __all__ = ["__version__", "errors"] + sorted(_LAZY)

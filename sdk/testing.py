@@ -18,8 +18,7 @@ from typing import Callable, Iterable
 
 import numpy as np
 
-from . import icosahedral
-
+from equipose.core import icosahedral
 __all__ = ["assert_equivariant", "equivariance_errors", "torch_model_fn", "torch_layer_fn", "onnx_model_fn"]
 
 ModelFn = Callable[[np.ndarray], dict]

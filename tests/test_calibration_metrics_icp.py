@@ -3,10 +3,10 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from equipose.geometry import random_rotations, rotation_angle_deg
+from equipose.core.geometry import random_rotations, rotation_angle_deg
 from equipose.train.calibration import (apply_calibration, calibrate_offsets, frame_with_axis, ransac_rotation,
                                         so3_mean)
-from equipose.train.metrics import rotation_errors, summarize, translation_errors
+from equipose.eval.metrics import rotation_errors, summarize, translation_errors
 
 
 def _noisy(R, n, deg, rng):
@@ -138,7 +138,7 @@ def test_calibrate_model_rotated_inputs_recover_offset():
     """calibrate_model(..., rotations=...) undoes the presented rotation: a perfectly equivariant fake model whose
     frame is offset by δR from the category frame yields δR back (within 1°)."""
     torch = pytest.importorskip("torch")
-    from equipose.geometry import random_rotations, rotation_angle_deg
+    from equipose.core.geometry import random_rotations, rotation_angle_deg
     from equipose.train.icp import kabsch
     from equipose.train.inference import calibrate_model
 
@@ -162,7 +162,7 @@ def test_calibrate_model_rotated_inputs_recover_offset():
 
 def test_metrics_for_metadata_keeps_our_row_plain_or_refined():
     from equipose.train.evaluate import metrics_for_metadata
-    from equipose.train.metrics import ROW_KEYS
+    from equipose.eval.metrics import ROW_KEYS
     row = {k: 1.0 for k in ROW_KEYS[1:]}
     for ours in ("equipose", "equipose+icp5"):
         res = {"category": "cup", "mode": "partial", "n": 100, "_info": {"icp_samples": 40},

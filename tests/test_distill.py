@@ -6,11 +6,12 @@ torch = pytest.importorskip("torch")
 
 from scipy.spatial.transform import Rotation  # noqa: E402
 
-from equipose import icosahedral  # noqa: E402
+from equipose.core import icosahedral  # noqa: E402
 from equipose.cli import main  # noqa: E402
 from equipose.errors import ConfigError  # noqa: E402
 from equipose.train.checkpoint import load_checkpoint  # noqa: E402
-from equipose.train.distill import distillation_loss, reachable_targets, teacher_targets  # noqa: E402
+from equipose.train.distill import teacher_targets  # noqa: E402
+from equipose.train.losses import distillation_loss, reachable_targets  # noqa: E402
 
 
 ANCHORS = torch.tensor(icosahedral.ANCHORS, dtype=torch.float32)                   # [60, 3, 3]

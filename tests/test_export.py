@@ -9,12 +9,12 @@ torch = pytest.importorskip("torch")
 onnx = pytest.importorskip("onnx")
 ort = pytest.importorskip("onnxruntime")
 
-from equipose import icosahedral as I  # noqa: E402
+from equipose.core import icosahedral as I  # noqa: E402
 from equipose.cli import main as cli_main  # noqa: E402
 from equipose.errors import ConfigError, MetadataError, ModelFormatError  # noqa: E402
 from equipose.export import export_checkpoint, export_model, export_random_model, int8_path_for  # noqa: E402
-from equipose.metadata import REQUIRED_KEYS, decode_metadata  # noqa: E402
-from equipose.presets import get_preset  # noqa: E402
+from equipose.core.metadata import REQUIRED_KEYS, decode_metadata  # noqa: E402
+from equipose.core.presets import get_preset  # noqa: E402
 from equipose.testing import assert_equivariant, onnx_model_fn  # noqa: E402
 from equipose.train.checkpoint import save_checkpoint  # noqa: E402
 from equipose.train.model import EquiPoseNet  # noqa: E402

@@ -1,9 +1,7 @@
 import numpy as np
 import pytest
 
-from equipose import icosahedral as I
-
-
+from equipose.core import icosahedral as I
 def test_rotations_are_orthonormal_proper():
     A = I.ANCHORS
     assert A.shape == (60, 3, 3)
@@ -90,7 +88,7 @@ def test_kernel_points():
 
 
 def test_quaternions_match_matrices():
-    from equipose.geometry import quaternion_to_matrix
+    from equipose.core.geometry import quaternion_to_matrix
     q = I.ANCHOR_QUATERNIONS
     assert (q[:, 0] >= 0).all() and np.allclose(np.linalg.norm(q, axis=1), 1)
     assert np.allclose(quaternion_to_matrix(q), I.ANCHORS, atol=1e-12)

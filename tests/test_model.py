@@ -4,7 +4,7 @@ import pytest
 
 torch = pytest.importorskip("torch")
 
-from equipose.presets import count_params, get_preset  # noqa: E402
+from equipose.core.presets import count_params, get_preset  # noqa: E402
 from equipose.testing import assert_equivariant, torch_layer_fn, torch_model_fn  # noqa: E402
 from equipose.train import EquiPoseNet, chamfer_min_of_60_loss  # noqa: E402
 from equipose.train.layers import InterSO3Conv, IntraSO3Conv, SeparableSO3Block  # noqa: E402
@@ -158,7 +158,7 @@ def test_knn_prefix_sharing_needs_and_gets_ordered_search(rng):
 
 
 def test_axial_symmetry_loss_prefers_the_symmetry_axis_on_z():
-    from equipose.train.model import axial_symmetry_loss
+    from equipose.train.losses import axial_symmetry_loss
     from equipose.train.shapes import cylinder_surface
     rng = np.random.default_rng(0)
     tin = torch.tensor(cylinder_surface(0.3, 0.1, 256, rng)[None], dtype=torch.float32)   # squat, axis on z

@@ -1,8 +1,7 @@
-"""``equipose.realdata`` (table plane, object grouping, axis folding, PCA axis) and ``tools/eval_real_axes.py``.
+"""``equipose.eval.realdata`` (table plane, object grouping, axis folding, PCA axis) and ``equipose.eval.real_axes``.
 
 Convention: camera frame OpenCV (x right, y down, z forward), metres; angles in degrees.
 """
-import importlib.util
 import json
 import pathlib
 
@@ -10,7 +9,7 @@ import numpy as np
 import pytest
 
 from equipose.errors import InvalidPointsError, SourceError, TooFewPointsError
-from equipose.realdata import (LabelledScene, axis_table_angle, fit_plane, group_objects, load_labelled_scene,
+from equipose.eval.realdata import (LabelledScene, axis_table_angle, fit_plane, group_objects, load_labelled_scene,
                                orient_towards_camera, principal_axis, random_axis_fraction_within,
                                random_axis_summary, summarize_deviations, table_plane)
 
@@ -206,10 +205,8 @@ def test_read_organized_pcd_contract_unchanged(data_root):
 
 
 def _tool():
-    spec = importlib.util.spec_from_file_location("eval_real_axes", ROOT / "tools" / "eval_real_axes.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+    from equipose.eval import real_axes
+    return real_axes
 
 
 def test_tool_runs_one_scene_with_the_demo_model(data_root, tmp_path, capsys):

@@ -1,8 +1,8 @@
-"""Renderer geometry: rendered depth and back-projection through equipose.crop are exact to 1 mm; occlusion."""
+"""Renderer geometry: rendered depth and back-projection through equipose.preprocess are exact to 1 mm; occlusion."""
 import numpy as np
 import pytest
 
-from equipose.crop import crop_points
+from equipose.preprocess import crop_points
 from equipose.train.render import (camera_matrix, depth_to_uint16, rasterize_mesh, render_frame, splat_surfels,
                                    surfels_from_points, render_views, RenderSettings)
 

@@ -36,7 +36,7 @@ def test_can_sources_are_upright_and_metric(data_root):
 
 def test_tabletop_cache_layout(data_root, tmp_path):
     from equipose.train.data import RenderedPartial
-    from equipose.train.render import ensure_cache
+    from equipose.train.render_cache import ensure_cache
     path = ensure_tabletop_cache(data_root, "bowl", "test", cache_dir=tmp_path, views=2, limit=3, progress=False,
                                  log=lambda *a: None)
     assert ensure_cache(data_root, "bowl", "test", cache_dir=tmp_path, views=2, limit=3, progress=False) == path
@@ -82,7 +82,7 @@ def test_procedural_cylinders_are_closed_and_upright():
 
 
 def test_can_complete_clouds_add_cylinders(data_root):
-    from equipose.train.data import load_complete, load_modelnet
+    from equipose.train.modelnet import load_complete, load_modelnet
     clouds, ids = load_complete(data_root, "can", "test", limit=5)
     bottles, _ = load_modelnet(data_root, "bottle", "test", limit=5)
     assert len(clouds) == 10 and ids[-1] == "cylinder_4" and np.array_equal(clouds[:5], bottles)

@@ -14,8 +14,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from equipose.errors import ConfigError
-from equipose.geometry import axis_angle_deg, rotation_angle_deg
+from equipose.core.errors import ConfigError
+from equipose.core.geometry import axis_angle_deg, rotation_angle_deg
 
 __all__ = ["so3_mean", "ransac_rotation", "ransac_axis", "ransac_translation", "calibrate_offsets",
            "apply_calibration", "frame_with_axis", "AXES", "calibrate_onnx_refined"]
@@ -171,7 +171,7 @@ def calibrate_onnx_refined(model_path, canonical_points: np.ndarray, k: int = 5,
     input origin) of exactly the SDK's path; they are reduced with ``calibrate_offsets``. Returns that dict plus
     ``k`` and ``iters`` (the ``refine_calibration`` metadata entry). torch-free.
     """
-    from equipose import PoseEstimator
+    from equipose.runtime.estimator import PoseEstimator
 
     pts = np.asarray(canonical_points, np.float64)
     if pts.ndim != 3 or pts.shape[-1] != 3:

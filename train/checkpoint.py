@@ -21,10 +21,10 @@ import pathlib
 
 import torch
 
-from equipose.errors import ConfigError
-from equipose.presets import ModelConfig
+from equipose.core.errors import ConfigError
+from equipose.core.presets import ModelConfig
 
-from .model import EquiPoseNet
+from equipose.train.model import EquiPoseNet
 
 __all__ = ["save_checkpoint", "load_checkpoint", "model_from_checkpoint", "clean_state_dict", "CHECKPOINT_FORMAT"]
 

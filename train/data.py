@@ -1,4 +1,6 @@
-"""Training and evaluation data: ModelNet40 1024-point complete clouds and cached rendered partial-depth clouds.
+"""Training and evaluation datasets: ModelNet40 1024-point complete clouds and cached rendered partial-depth clouds.
+
+The shape files are read by ``equipose.train.modelnet``; partial views come from ``equipose.train.render_cache``.
 
 Convention:
     Files: ``<root>/modelnet40_npy1024/<cat>/{train,test}/<cat>_NNNN.npy``, float32 [1024, 3], centred, max radius 1,
@@ -15,83 +17,14 @@ Convention:
 """
 from __future__ import annotations
 
-import os
-import pathlib
-
 import numpy as np
 
-from equipose.errors import ConfigError
-from equipose.geometry import farthest_point_order, random_rotations
+from equipose.core.errors import ConfigError
+from equipose.core.geometry import farthest_point_order, random_rotations
+from equipose.train.modelnet import (MODELNET_SCALE, TEST_ROTATIONS, TEST_SEED, category_symmetry,  # noqa: F401
+                                     default_data_root, load_complete, load_modelnet)
 
-__all__ = ["default_data_root", "modelnet_files", "load_modelnet", "ModelNetComplete", "RenderedPartial",
-           "MODELNET_SCALE", "SYMMETRIC_CATEGORIES", "category_symmetry", "make_dataset", "TEST_ROTATIONS",
-           "TEST_SEED"]
-
-MODELNET_SCALE = 2.0               # file units per model unit: max radius 1 → 0.5
-SYMMETRIC_CATEGORIES = ("bottle", "bowl", "cup", "can", "cylinder")
-TEST_ROTATIONS = 5                 # paper protocol: 5 random rotations per test instance
-TEST_SEED = 2913
-
-
-def default_data_root() -> pathlib.Path:
-    """``$EQUIPOSE_DATA`` if set, else ``../shared/data`` beside the repository."""
-    env = os.environ.get("EQUIPOSE_DATA")
-    if env:
-        return pathlib.Path(env)
-    return pathlib.Path(__file__).resolve().parents[1].parent / "shared" / "data"
-
-
-def category_symmetry(category: str) -> str:
-    """``continuous:z`` for rotationally symmetric categories, else ``none``."""
-    return "continuous:z" if category in SYMMETRIC_CATEGORIES else "none"
-
-
-def modelnet_files(root, category: str, split: str) -> list:
-    """Sorted ``.npy`` paths of one category and split (official ModelNet40 split)."""
-    if split not in ("train", "test"):
-        raise ConfigError(f"split must be 'train' or 'test', got {split!r}")
-    d = pathlib.Path(root) / "modelnet40_npy1024" / category / split
-    files = sorted(d.glob("*.npy"))
-    if not files:
-        raise ConfigError(f"no ModelNet40 clouds under {d}; set --data-root or $EQUIPOSE_DATA "
-                          f"(expected <root>/modelnet40_npy1024/<category>/<split>/*.npy)")
-    return files
-
-
-def load_modelnet(root, category: str, split: str, limit: int | None = None) -> tuple:
-    """(clouds [S, 1024, 3] float32 in file units, instance ids [S] str)."""
-    files = modelnet_files(root, category, split)[:limit]
-    return np.stack([np.load(f).astype(np.float32) for f in files]), [f.stem for f in files]
-
-
-# Complete-shape categories built from another ModelNet category plus procedural closed cylinders (train/shapes.py):
-# ``can`` = ModelNet bottles (nearly all taller than wide) + cylinders of every proportion, h/d 0.25–4.
-PROCEDURAL_COMPLETE = {"can": {"modelnet": "bottle", "cylinders": {"train": 200, "test": 40}},
-                       "cylinder": {"modelnet": None, "cylinders": {"train": 400, "test": 40}}}   # cylinders only
-
-
-def load_complete(root, category: str, split: str, limit: int | None = None) -> tuple:
-    """Complete clouds of a category: (clouds [S, 1024, 3] float32 at max radius 1, as the ModelNet files, ids [S]).
-
-    A ModelNet40 category as is; ``can`` = the ModelNet bottles followed by seeded procedural cylinders (ids
-    ``cylinder_K``); ``cylinder`` = procedural cylinders only (experiments). ``limit`` keeps the first K of each part.
-    """
-    spec = PROCEDURAL_COMPLETE.get(category)
-    if spec is None:
-        return load_modelnet(root, category, split, limit)
-    from .shapes import cylinder_proportions, cylinder_surface
-    if spec["modelnet"]:
-        clouds, ids = load_modelnet(root, spec["modelnet"], split, limit)
-    else:
-        clouds, ids = np.zeros((0, 1024, 3), np.float32), []
-    n = spec["cylinders"][split] if limit is None else min(limit, spec["cylinders"][split])
-    split_id = 0 if split == "train" else 1
-    rng = np.random.default_rng([TEST_SEED, split_id, 5])
-    cyl = []
-    for k, (r, h) in enumerate(cylinder_proportions(n, seed=[TEST_SEED, split_id, 6])):
-        p = cylinder_surface(r, h, clouds.shape[1], rng)
-        cyl.append((p / np.linalg.norm(p, axis=1).max()).astype(np.float32))      # max radius 1, like the files
-    return np.concatenate([clouds, np.stack(cyl)]) if cyl else clouds, list(ids) + [f"cylinder_{k}" for k in range(n)]
+__all__ = ["ModelNetComplete", "RenderedPartial", "make_dataset", "collate"]
 
 
 def _bbox_diag(p: np.ndarray) -> float:
@@ -150,7 +83,7 @@ class ModelNetComplete:
 class RenderedPartial:
     """Rendered partial-depth samples from a cache written by ``equipose.train.render.render_dataset``.
 
-    The cache (``.npz``) holds concatenated back-projected points (metres, camera frame, through ``equipose.crop``),
+    The cache (``.npz``) holds concatenated back-projected points (metres, camera frame, through ``equipose.preprocess``),
     per-view offsets, GT poses (metres) and per-instance bbox diagonals. Training re-draws the FPS start per access.
     """
 
@@ -199,7 +132,7 @@ def make_dataset(root, category: str, mode: str, split: str, num_points: int, tr
     if mode == "complete":
         return ModelNetComplete(root, category, split, num_points, train, limit=limit)
     if mode == "partial":
-        from .render import ensure_cache
+        from equipose.train.render_cache import ensure_cache
         path = ensure_cache(root, category, split, cache_dir=cache_dir, limit=limit, **(render_opts or {}))
         return RenderedPartial(path, num_points, train)
     raise ConfigError(f"mode must be 'complete' or 'partial', got {mode!r}")

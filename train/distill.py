@@ -17,28 +17,26 @@ Convention:
 from __future__ import annotations
 
 import json
-import math
 import pathlib
 
 import numpy as np
 import torch
 from tqdm import tqdm
 
-from equipose.errors import ConfigError
+from equipose.core.errors import ConfigError
 
-from .checkpoint import model_from_checkpoint
-from .model import squared_distances
+from equipose.train.checkpoint import model_from_checkpoint
 
 __all__ = ["complete_clouds", "teacher_targets", "distillation_loss"]
 
 
 def complete_clouds(root, category: str, split: str, limit: int | None = None) -> list:
     """Complete point clouds [P_i, 3] per instance, in the frame and units (metres) the render cache posed them in."""
-    from .tabletop import is_tabletop, tabletop_sources
+    from equipose.train.tabletop import is_tabletop, tabletop_sources
     if is_tabletop(category):
         return [np.asarray(c, np.float64) for _, _, c in tabletop_sources(root, category, split)[:limit]]
-    from .render import _modelnet_shapes
-    return [np.asarray(c, np.float64) for _, _, c in _modelnet_shapes(root, category, split, "npy1024", limit)]
+    from equipose.train.render_cache import modelnet_shapes
+    return [np.asarray(c, np.float64) for _, _, c in modelnet_shapes(root, category, split, "npy1024", limit)]
 
 
 @torch.no_grad()
@@ -52,11 +50,11 @@ def teacher_targets(teacher_path, dataset, clouds: list, refine: int = 5, batch_
     The teacher sees each instance's complete cloud once, in the object frame the renderer posed it from; its pose
     is carried to every view by that view's render pose (R_view · R_teacher, R_view · c + t_view) — exact for the
     ICP-refined pose, and every view of an instance shares one frame. ``refine`` > 0: the teacher's ``refine`` best
-    hypotheses are ICP-refined against its own canonical shape and re-ranked (``equipose.refine``), as the shipped
+    hypotheses are ICP-refined against its own canonical shape and re-ranked (``equipose.runtime.refine``), as the shipped
     complete models run. Cached in ``cache_file`` (keyed by the teacher file, the views and ``refine``).
     """
-    from equipose.geometry import farthest_point_order
-    from equipose.refine import refine_hypotheses
+    from equipose.core.geometry import farthest_point_order
+    from equipose.runtime.refine import refine_hypotheses
     teacher, ck = model_from_checkpoint(teacher_path)
     if teacher.partial:
         raise ConfigError(f"--teacher {teacher_path}: the teacher must be a complete-shape model (mode complete)")
@@ -98,102 +96,3 @@ def teacher_targets(teacher_path, dataset, clouds: list, refine: int = 5, batch_
         np.savez(cache_file, key=np.str_(key), **res)
     log(f"teacher targets: {len(clouds)} instances, {len(dataset)} views from {teacher_path} (refine {refine})")
     return res
-
-
-@torch.no_grad()
-def reachable_targets(anchors: torch.Tensor, rotations: torch.Tensor, max_deg: float) -> torch.Tensor:
-    """Per anchor, the rotation on the geodesic from the anchor toward ``rotations`` at most ``max_deg`` away.
-
-    anchors [A, 3, 3], rotations [B, 3, 3] → [B, A, 3, 3] (detached; scipy's rotation vectors are stable near 180°).
-    """
-    from scipy.spatial.transform import Rotation
-    A_np = anchors.detach().cpu().double().numpy()                                   # [A, 3, 3]
-    R_np = rotations.detach().cpu().double().numpy()                                 # [B, 3, 3]
-    rel = np.einsum("aji,bjk->baik", A_np, R_np)                                      # [B, A, 3, 3] A_aᵀ R*
-    rv = Rotation.from_matrix(rel.reshape(-1, 3, 3)).as_rotvec()                      # [B·A, 3]
-    ang = np.linalg.norm(rv, axis=1, keepdims=True)
-    rv *= np.minimum(1.0, np.radians(max_deg) / np.maximum(ang, 1e-12))
-    step = Rotation.from_rotvec(rv).as_matrix().reshape(rel.shape)                    # [B, A, 3, 3]
-    out = np.einsum("aij,bajk->baik", A_np, step)
-    return torch.as_tensor(out, dtype=rotations.dtype, device=rotations.device)
-
-
-def _chamfer(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
-    """Bidirectional chamfer [...] between point sets a [..., M, 3] and b [..., K, 3] (mean squared distances)."""
-    d2 = squared_distances(a, b)                                                      # [..., M, K]
-    return d2.min(dim=-1).values.mean(dim=-1) + d2.min(dim=-2).values.mean(dim=-1)
-
-
-def _subset_chamfer(a: torch.Tensor, b: torch.Tensor, stride: int) -> torch.Tensor:
-    """Chamfer [...] of a [..., M, 3] and b [..., M, 3] from every ``stride``-th point of each to all of the other.
-
-    Stays blind to symmetries of the dense sets (a subset point finds its partner in the other dense set) at
-    2 × M/stride × M distances instead of 2 × M².
-    """
-    d_ab = squared_distances(a[..., ::stride, :], b).min(dim=-1).values.mean(dim=-1)
-    d_ba = squared_distances(b[..., ::stride, :], a).min(dim=-1).values.mean(dim=-1)
-    return d_ab + d_ba
-
-
-def distillation_loss(out: dict, shapes: torch.Tensor, rotations: torch.Tensor, translations: torch.Tensor,
-                      anchors: torch.Tensor, symmetric: bool = False, quat_weight: float = 0.1,
-                      select_weight: float = 0.0, select_tolerance: float = 1.5, select_deg: float = 10.0,
-                      reach_weight: float = 1.0, reach_deg: float = 40.0, pose_points: int = 64) -> tuple:
-    """Student loss against teacher targets; returns (loss, parts dict of floats).
-
-    shape: chamfer(student canonical shape, teacher shape) — pins the student to the teacher's frame.
-    pose, on the hypothesis of the anchor nearest to the teacher's rotation (its residual can reach the target: θmax
-    ≥ the anchors' covering radius): ``symmetric`` — chamfer(teacher shape posed by it, teacher shape posed by the
-    teacher), blind to the spin about the axis, which a partial view of a symmetric shape cannot tell; otherwise
-    ‖R − R*‖²_F + ‖t − t*‖² (a chamfer is too flat there: a roll-flipped airplane scores lower than a 21°-off upright
-    one). A min over the 60 hypotheses instead locks onto such flips (measured: 152° median after 250 steps).
-    reach: ``reach_weight`` × the same term averaged over *all* 60 hypotheses, each against the teacher pose clamped
-    to within ``reach_deg`` of its own anchor (≥ the anchors' covering radius, 37.4°, so the nearest anchor's target
-    is the teacher pose itself). Every hypothesis turns toward the teacher pose, none stays on a symmetric flip of the
-    object (a roll-flipped airplane) that the partial-view chamfer score could not tell from the right pose, and each
-    target is reachable without stretching the residual quaternion (an unclamped pull fought its norm penalty:
-    near-anchor error stuck at 13°).
-    select (optional): cross-entropy making the student's own partial-view chamfer score pick a right hypothesis —
-    uniform target over the nearest anchor's and those within ``select_deg`` of R* (symmetric: pose chamfer within
-    ``select_tolerance`` × the nearest anchor's). ``out`` from ``forward(..., return_aux=True)``; shapes [B, M, 3],
-    rotations [B, 3, 3], translations [B, 3], anchors [A, 3, 3]. The symmetric pose chamfers start from a regular
-    subset of about ``pose_points`` points of each set (all 60 hypotheses × M² distances dominated the step: cup
-    0.42 s per step with an edge-q student).
-    """
-    S = shapes
-    loss_shape = _chamfer(out["canonical_shape"], S).mean()
-    R, t = out["hypothesis_rotations"], out["hypothesis_translations"]               # [B, A, 3, 3], [B, A, 3]
-    tr = torch.einsum("aij,bij->ba", anchors, rotations)                              # [B, A] trace(Aᵀ R*) ∝ cos
-    near = tr.argmax(dim=1)                                                           # [B] nearest anchor
-    ar = torch.arange(len(near), device=near.device)
-    R_reach = reachable_targets(anchors, rotations, reach_deg)                        # [B, A, 3, 3]
-    R_reach[ar, near] = rotations                                                     # the nearest: exactly R*
-    if symmetric:
-        stride = max(1, -(-S.shape[1] // pose_points))
-        posed = torch.einsum("bmj,bakj->bamk", S, R) + t[:, :, None]                  # [B, A, M, 3]
-        goal = torch.einsum("bmj,bakj->bamk", S, R_reach) + translations[:, None, None]   # [B, A, M, 3]
-        per = _subset_chamfer(posed, goal, stride)                                    # [B, A] vs reachable goals
-    else:
-        per = ((R - R_reach).pow(2).sum((2, 3)) + (t - translations[:, None]).pow(2).sum(2))   # [B, A]
-    loss_pose = per[ar, near].mean()
-    loss_reach = per.mean()
-    reg = (out["quaternion_norm"] - 1.0).pow(2).mean()
-    loss = loss_shape + loss_pose + reach_weight * loss_reach + quat_weight * reg
-    parts = {"shape": loss_shape.item(), "pose": loss_pose.item(), "reach": loss_reach.item()}
-    if select_weight > 0:
-        if symmetric:                                                                 # pose chamfer vs R* itself
-            with torch.no_grad():
-                target = S @ rotations.transpose(1, 2) + translations[:, None]        # [B, M, 3]
-                c = _subset_chamfer(posed, target[:, None].expand_as(posed), stride)  # [B, A]
-            ok = c <= select_tolerance * c[ar, near][:, None] + 1e-9                 # [B, A]
-        else:
-            cos = (torch.einsum("baij,bij->ba", R.detach(), rotations) - 1) / 2      # [B, A] cos of the angle to R*
-            ok = cos >= math.cos(math.radians(select_deg))
-        ok[ar, near] = True
-        ok = ok.float()
-        s = out["hypothesis_scores"]                                                  # [B, A]
-        logp = torch.log_softmax(-s / s.detach().std(dim=1, keepdim=True).clamp_min(1e-9), dim=1)
-        loss_sel = -(ok * logp).sum(1).div(ok.sum(1)).mean()
-        loss = loss + select_weight * loss_sel
-        parts["select"] = loss_sel.item()
-    return loss, parts

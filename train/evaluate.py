@@ -4,7 +4,7 @@ Convention:
     Test samples come from ``data`` (``raw(i)``): points in metres (file units for ModelNet), GT pose x = R x_obj + t
     (metres), the instance's bbox diagonal. Rotation errors in degrees (symmetric categories: up-axis angle);
     translation errors ‖t̂ − t‖ divided by the bbox diagonal on ModelNet (as the paper), so "0.05" is 5 % of the
-    diagonal. The checkpoint path feeds the model exactly what ``PoseEstimator`` does (``equipose.crop.prepare_points``:
+    diagonal. The checkpoint path feeds the model exactly what ``PoseEstimator`` does (``equipose.preprocess.prepare_points``:
     centroid-centred, scaled, FPS-ordered), then argmin-of-60 selection and the stored calibration.
     ICP-60 runs on the same points against 3 random training shapes (category frame, seeded); its row is the mean of
     the per-template rows, as the paper.
@@ -19,14 +19,15 @@ import time
 
 import numpy as np
 
-from equipose.crop import prepare_points
-from equipose.errors import ConfigError
-from equipose.geometry import farthest_point_order
+from equipose.preprocess import prepare_points
+from equipose.core.errors import ConfigError
+from equipose.core.geometry import farthest_point_order
 
-from .calibration import apply_calibration
-from .data import ModelNetComplete, RenderedPartial, default_data_root, load_modelnet
-from .icp import icp60
-from .metrics import ROW_KEYS, rotation_errors, summarize, translation_errors
+from equipose.train.calibration import apply_calibration
+from equipose.train.data import ModelNetComplete, RenderedPartial
+from equipose.train.modelnet import default_data_root, load_modelnet
+from equipose.train.icp import icp60
+from equipose.eval.metrics import rotation_errors, row_keys, summarize, translation_errors
 
 __all__ = ["test_dataset", "predict_checkpoint", "predict_onnx", "run_icp", "evaluate", "plot_percentiles",
            "metrics_for_metadata"]
@@ -38,7 +39,7 @@ def test_dataset(root, category: str, mode: str, num_points: int, limit: int | N
     if mode == "complete":
         return ModelNetComplete(root, category, "test", num_points, train=False, limit=limit)
     if mode == "partial":
-        from .render import ensure_cache
+        from equipose.train.render_cache import ensure_cache
         return RenderedPartial(ensure_cache(root, category, "test", cache_dir=cache_dir, limit=limit, views=views),
                                num_points, train=False)
     raise ConfigError(f"mode must be complete or partial, got {mode!r}")
@@ -46,7 +47,7 @@ def test_dataset(root, category: str, mode: str, num_points: int, limit: int | N
 
 def predict_checkpoint(model, ckpt: dict, samples: list, batch_size: int = 16) -> tuple:
     """Torch model on the SDK's model input. Returns (R [S, 3, 3], t [S, 3] metres), calibrated."""
-    from .inference import predict_torch
+    from equipose.train.inference import predict_torch
     scale = float(ckpt["scale"])
     preps = [prepare_points(s["points_m"], model.num_points, scale) for s in samples]
     R, t, _ = predict_torch(model, np.stack([p.model_points for p in preps]), batch_size)
@@ -58,7 +59,7 @@ def predict_checkpoint(model, ckpt: dict, samples: list, batch_size: int = 16) -
 def predict_onnx(model_path, samples: list, batch_size: int = 16, refine="auto") -> tuple:
     """The exported model through ``equipose.PoseEstimator`` (what users run; ``refine``: its ICP re-scoring of
     the k best hypotheses). Returns (R, t metres, estimator)."""
-    from equipose import PoseEstimator
+    from equipose.runtime.estimator import PoseEstimator
     est = PoseEstimator(model_path, refine=refine)
     Rs, ts = [], []
     for i in range(0, len(samples), batch_size):
@@ -86,7 +87,7 @@ def run_icp(samples: list, templates: list, bidirectional: bool, obs_points: int
 def _icp_template_clouds(root, category: str) -> list:
     """ICP-60 template candidates in the test samples' units: ModelNet train clouds (file units), or for tabletop
     categories the ModelNet source category resized to the middle of its metric radius range (metres)."""
-    from .tabletop import TABLETOP
+    from equipose.train.tabletop import TABLETOP
     spec = TABLETOP.get(category)
     if spec is None:
         return list(load_modelnet(root, category, "train")[0])
@@ -114,7 +115,7 @@ def evaluate(*, category: str, mode: str, checkpoint=None, model_path=None, data
     if refine is not None and checkpoint is not None:
         raise ConfigError("--refine applies to an exported model (--model), the SDK's re-scoring")
     if checkpoint is not None:
-        from .checkpoint import model_from_checkpoint
+        from equipose.train.checkpoint import model_from_checkpoint
         model, ckpt = model_from_checkpoint(checkpoint)
         num_points, symmetry, scale = model.num_points, ckpt["symmetry"], float(ckpt["scale"])
         if ckpt["category"] != category:
@@ -124,7 +125,7 @@ def evaluate(*, category: str, mode: str, checkpoint=None, model_path=None, data
         if not ckpt.get("calibration"):
             log("warning: checkpoint has no calibration (identity); run 'equipose calibrate' first")
     else:
-        from equipose import PoseEstimator
+        from equipose.runtime.estimator import PoseEstimator
         est = PoseEstimator(model_path)
         num_points, symmetry, scale = est.num_points, est.symmetry, est.scale
     unsigned = category == "can"
@@ -157,7 +158,7 @@ def evaluate(*, category: str, mode: str, checkpoint=None, model_path=None, data
         for Ri, ti in per:
             rw, re, te = _row("icp60", Ri, ti, icp_set, symmetry, unsigned)
             trows.append(rw); r_all.append(re); t_all.append(te)
-        icp_row = {"method": "icp60", **{k: float(np.mean([r[k] for r in trows])) for k in ROW_KEYS[1:]}}
+        icp_row = {"method": "icp60", **{k: float(np.mean([r[k] for r in trows])) for k in row_keys()[1:]}}
         rows.append(icp_row)
         errors["icp60"] = (np.concatenate(r_all), np.concatenate(t_all))
     log(f"evaluated {len(samples)} samples: ours {ours_s:.1f} s; ICP-60 on {len(icp_set)} × {icp_templates} templates "
@@ -180,7 +181,7 @@ def format_table(result: dict) -> str:
 
 def metrics_for_metadata(result: dict) -> dict:
     """The compact ``metrics`` metadata entry of a model: its own row, ICP-60's row, test-set description."""
-    rows = {r["method"]: {k: round(float(r[k]), 4) for k in ROW_KEYS[1:]} for r in result["rows"]}
+    rows = {r["method"]: {k: round(float(r[k]), 4) for k in row_keys()[1:]} for r in result["rows"]}
     info = result.get("_info", {})
     ours = result["rows"][0]["method"]                                  # "equipose" or "equipose+icpK"
     return {"test_set": f"{result['category']}/{result['mode']} test split (equipose.train.evaluate)",

@@ -14,9 +14,9 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
-from equipose import icosahedral
-from equipose.errors import InvalidPointsError
-from equipose.refine import icp_multi, kabsch  # noqa: F401  (re-exported; the ICP core lives in the SDK)
+from equipose.core import icosahedral
+from equipose.core.errors import InvalidPointsError
+from equipose.runtime.refine import icp_multi, kabsch  # noqa: F401  (re-exported; the ICP core lives in the SDK)
 
 __all__ = ["kabsch", "icp_multi", "icp60_all", "icp60", "icp60_outputs"]
 

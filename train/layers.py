@@ -17,8 +17,8 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
-from equipose import icosahedral
-from equipose.presets import LayerSpec
+from equipose.core import icosahedral
+from equipose.core.presets import LayerSpec
 
 __all__ = ["knn_indices", "flat_rows", "shared_neighbourhoods", "kernel_aug", "hat_weights", "gather_rows",
            "InterSO3Conv", "IntraSO3Conv", "SeparableSO3Block", "instance_norm", "LEAKY_SLOPE", "count_parameters"]

@@ -10,7 +10,7 @@ import pathlib
 
 import numpy as np
 
-from equipose.errors import ConfigError
+from equipose.core.errors import ConfigError
 
 __all__ = ["read_mesh", "read_ply", "read_obj", "read_modelnet_txt"]
 

@@ -20,11 +20,11 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
-from equipose import icosahedral
-from equipose.presets import ModelConfig, get_preset
+from equipose.core import icosahedral
+from equipose.core.presets import ModelConfig, get_preset
 
-from .layers import LEAKY_SLOPE, SeparableSO3Block, shared_neighbourhoods
-from .quotient import QuotientBlock, lift_pairs
+from equipose.train.layers import LEAKY_SLOPE, SeparableSO3Block, shared_neighbourhoods
+from equipose.train.quotient import QuotientBlock, lift_pairs
 
 __all__ = ["EquiPoseNet", "quaternion_to_matrix", "squared_distances", "hypothesis_scores", "OUTPUT_NAMES",
            "chamfer_min_of_60_loss", "axial_symmetry_loss"]
@@ -241,26 +241,3 @@ class EquiPoseNet(nn.Module):
             out["quaternion_norm"] = dq.norm(dim=-1)
             out["features"] = feats
         return out
-
-
-def chamfer_min_of_60_loss(out: dict, quat_weight: float = 0.1) -> torch.Tensor:
-    """Self-supervised loss: mean over the batch of min over the 60 hypotheses of the chamfer score, plus
-    ``quat_weight`` · mean (‖Δq‖ − 1)². No ground truth involved. ``out`` from ``forward(..., return_aux=True)``."""
-    rec = out["hypothesis_scores"].min(dim=1).values.mean()
-    reg = (out["quaternion_norm"] - 1.0).pow(2).mean()
-    return rec + quat_weight * reg
-
-
-def axial_symmetry_loss(shape: torch.Tensor, rng) -> torch.Tensor:
-    """Label-free prior for rotationally symmetric categories: the canonical shape should look the same turned about
-    its z axis. Symmetric chamfer (squared distances) between ``shape`` [B, M, 3] and its copy turned by one random
-    angle in [45°, 135°] per sample (``rng``: numpy Generator; far from 0° and from the 180° turn that leaves a lying
-    cylinder unchanged); mean over the batch. Without it the min-of-60 loss is as happy to put a squat tin's diameter
-    on z as its axis (the network learns "longest direction = z")."""
-    a = torch.as_tensor(rng.uniform(math.pi / 4, 3 * math.pi / 4, shape.shape[0]), dtype=shape.dtype,
-                        device=shape.device)                                          # [B]
-    c, s = torch.cos(a), torch.sin(a)
-    turned = torch.stack([c[:, None] * shape[..., 0] - s[:, None] * shape[..., 1],
-                          s[:, None] * shape[..., 0] + c[:, None] * shape[..., 1], shape[..., 2]], -1)  # [B, M, 3]
-    d2 = squared_distances(shape, turned)                                             # [B, M, M]
-    return (d2.min(dim=2).values.mean(dim=1) + d2.min(dim=1).values.mean(dim=1)).mean()

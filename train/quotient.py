@@ -21,10 +21,10 @@ import numpy as np
 import torch
 from torch import nn
 
-from equipose import icosahedral
-from equipose.presets import LayerSpec
+from equipose.core import icosahedral
+from equipose.core.presets import LayerSpec
 
-from .layers import SeparableSO3Block, hat_weights, kernel_aug
+from equipose.train.layers import SeparableSO3Block, hat_weights, kernel_aug
 
 __all__ = ["QuotientInterConv", "QuotientIntraConv", "QuotientBlock", "lift_pairs", "V", "KERNEL_CLASSES",
            "VERTEX_CLASSES"]

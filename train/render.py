@@ -1,5 +1,6 @@
 """Partial-depth renderer: z-buffer rasterisation of triangle meshes and surfel splatting of point clouds, then the
-SDK's own depth → crop → points path (``equipose.crop.crop_points``), with a seeded on-disk cache.
+SDK's own depth → crop → points path (``equipose.preprocess.crop_points``). The seeded on-disk cache of rendered
+views is ``equipose.train.render_cache``.
 
 Convention:
     Camera: OpenCV pinhole (x right, y down, z forward), pixel centres at integer coordinates; default 640×480,
@@ -20,19 +21,15 @@ which back surfaces could leak. Discs seen nearly edge-on (|n·ray| < 0.15) are 
 """
 from __future__ import annotations
 
-import hashlib
-import json
 import math
-import pathlib
-import time
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 
 import numpy as np
 from scipy.spatial import cKDTree
 
-from equipose.crop import crop_points
-from equipose.errors import ConfigError, EquiposeError
-from equipose.geometry import random_rotations
+from equipose.preprocess import crop_points
+from equipose.core.errors import EquiposeError
+from equipose.core.geometry import random_rotations
 
 __all__ = ["camera_matrix", "rasterize_mesh", "splat_surfels", "surfels_from_points", "depth_to_uint16",
            "RenderSettings", "sample_pose", "render_frame", "render_views", "ensure_cache", "CATEGORY_DISTANCE",
@@ -194,7 +191,7 @@ class RenderSettings:
     distance: float = 1.8              # object-centre depth, in units of the object's max radius
     offset_var: tuple = (0.2, 0.2, 0.15)   # Σ diagonal (variances), same units squared
     max_points: int = 2048             # points kept per view in the cache (random subset of the crop)
-    crop_max_points: int = 4096        # equipose.crop grid thinning before that subset (explicit: part of the cache key)
+    crop_max_points: int = 4096        # equipose.preprocess grid thinning before that subset (explicit: part of the cache key)
 
 
 def sample_pose(rng: np.random.Generator, settings: RenderSettings, radius: float = 1.0) -> tuple:
@@ -217,37 +214,9 @@ def render_frame(shape: dict, R: np.ndarray, t: np.ndarray, K: np.ndarray, size=
     return depth_to_uint16(depth)
 
 
-def _modelnet_shapes(root, category: str, split: str, source: str, limit: int | None) -> list:
-    """[(instance id, shape dict, complete points for the bbox)] in the normalised object frame (max radius 1)."""
-    from .data import load_modelnet
-    from .meshio import read_modelnet_txt
-    out = []
-    if source == "npy1024":
-        clouds, ids = load_modelnet(root, category, split, limit)
-        for cid, p in zip(ids, clouds):
-            p = p.astype(np.float64)
-            n, r = surfels_from_points(p)
-            out.append((cid, {"points": p, "normals": n, "radii": r}, p))
-    elif source == "dense":
-        folder = pathlib.Path(root) / ("modelnet40_normal_resampled_airplane" if category == "airplane"
-                                       else "modelnet40_normal_resampled_samples") / split
-        files = sorted(folder.glob(f"{category}_*.txt.gz"))[:limit]
-        if not files:
-            raise ConfigError(f"no dense {category} clouds under {folder}")
-        for f in files:
-            p, nrm = read_modelnet_txt(f)
-            p = p - p.mean(0)
-            p /= np.linalg.norm(p, axis=1).max()
-            n, r = surfels_from_points(p, nrm)
-            out.append((f.name.split(".")[0], {"points": p, "normals": n, "radii": r}, p))
-    else:
-        raise ConfigError(f"unknown render source {source!r} (npy1024 | dense)")
-    return out
-
-
 def render_views(shape: dict, rng: np.random.Generator, views: int, settings: RenderSettings,
                  radius: float = 1.0) -> list:
-    """Render ``views`` random views and back-project each through ``equipose.crop.crop_points`` with the mask.
+    """Render ``views`` random views and back-project each through ``equipose.preprocess.crop_points`` with the mask.
 
     Returns [(points [P, 3] float32 metres camera frame, R, t)]; views whose crop fails (object out of frame, too
     few points) are re-drawn (up to 5 tries each).
@@ -269,107 +238,3 @@ def render_views(shape: dict, rng: np.random.Generator, views: int, settings: Re
             out.append((pts.astype(np.float32), R, t))
             break
     return out
-
-
-def render_mesh_cache(mesh_path, out_path, views: int = 10, distance_m: float = 0.6, seed: int = 0,
-                      scale: float | None = None, category: str | None = None, settings: RenderSettings | None = None,
-                      log=print) -> pathlib.Path:
-    """Render ``views`` random views of one metric mesh (PLY/OBJ, metres) into an ``.npz`` cache (same layout as
-    ``ensure_cache``). The mesh is centred at its vertex mean (the object frame's origin); the object centre is at
-    ``distance_m`` (+ offsets Σ scaled by the max vertex radius²). ``scale`` defaults to 2 × max radius (max radius
-    0.5 model units)."""
-    from .meshio import read_mesh
-    V, F = read_mesh(mesh_path)
-    V = V - V.mean(0)
-    radius = float(np.linalg.norm(V, axis=1).max())
-    settings = settings or RenderSettings(distance=distance_m / radius)
-    rng = np.random.default_rng(seed)
-    t0 = time.perf_counter()
-    out = render_views({"vertices": V, "faces": F}, rng, views, settings, radius=radius)
-    dt = time.perf_counter() - t0
-    if not out:
-        raise ConfigError(f"no view of {mesh_path} could be rendered")
-    diag = float(np.linalg.norm(V.max(0) - V.min(0)))
-    out_path = pathlib.Path(out_path)
-    out_path.parent.mkdir(parents=True, exist_ok=True)
-    write_partial_cache(out_path, [o[0] for o in out], [o[1] for o in out], [o[2] for o in out], [diag] * len(out),
-                        [0] * len(out), scale=scale or 2.0 * radius, seconds=dt, key=str(mesh_path),
-                        category=category or pathlib.Path(mesh_path).parent.name)
-    log(f"rendered {len(out)} views of {mesh_path} ({len(F)} triangles) in {dt:.1f} s ({len(out) / dt:.1f} frames/s, "
-        f"render + crop) → {out_path}")
-    return out_path
-
-
-def default_cache_dir() -> pathlib.Path:
-    return pathlib.Path(__file__).resolve().parents[1] / "data_cache"
-
-
-def ensure_cache(root, category: str, split: str, cache_dir=None, limit: int | None = None, views: int = 10,
-                 source: str = "npy1024", seed: int = 0, settings: RenderSettings | None = None,
-                 progress: bool = True, log=print) -> pathlib.Path:
-    """Render (once) and cache the partial views of a ModelNet category split (tabletop categories: see
-    ``equipose.train.tabletop``); returns the ``.npz`` path.
-
-    The cache key hashes every setting, so a changed setting renders a new cache. Seeded per instance: view k of
-    instance i depends only on (seed, split, i).
-    """
-    from tqdm import tqdm
-    from .data import MODELNET_SCALE
-    from .tabletop import ensure_tabletop_cache, is_tabletop
-    if is_tabletop(category):     # cup / bowl / can: metric-scale tabletop data (equipose.train.tabletop)
-        if settings is not None or source != "npy1024":
-            raise ConfigError(f"tabletop category {category!r} renders with its own camera settings and sources "
-                              "(equipose.train.tabletop); do not pass settings/source")
-        return ensure_tabletop_cache(root, category, split, cache_dir=cache_dir, views=views, seed=seed,
-                                     progress=progress, log=log, limit=limit)
-    settings = settings or RenderSettings(distance=CATEGORY_DISTANCE.get(category, 2.0))
-    key, path = keyed_cache_path(cache_dir, f"partial_{category}_{split}_{source}_v{views}",
-                                 {"category": category, "split": split, "limit": limit, "views": views,
-                                  "source": source, "seed": seed, "settings": asdict(settings), "v": 1})
-    if path.is_file():
-        return path
-    shapes = _modelnet_shapes(root, category, split, source, limit)
-    pts, Rs, ts, diags, inst = [], [], [], [], []
-    t0 = time.perf_counter()
-    split_id = 0 if split == "train" else 1
-    for i, (cid, shape, complete) in enumerate(tqdm(shapes, desc=f"render {category}/{split}", disable=not progress)):
-        rng = np.random.default_rng([seed, split_id, i])
-        diag = float(np.linalg.norm(complete.max(0) - complete.min(0)))
-        for p, R, t in render_views(shape, rng, views, settings):
-            pts.append(p); Rs.append(R); ts.append(t); diags.append(diag); inst.append(i)
-    dt = time.perf_counter() - t0
-    if not pts:
-        raise ConfigError(f"no view of {category}/{split} could be rendered")
-    write_partial_cache(path, pts, Rs, ts, diags, inst, scale=MODELNET_SCALE, category=category, key=key, seconds=dt)
-    log(f"rendered {len(pts)} views of {len(shapes)} {category}/{split} shapes in {dt:.1f} s "
-        f"({len(pts) / dt:.1f} frames/s, render + crop) → {path}")
-    return path
-
-
-# Version of the render → crop pipeline whose output a cache holds; part of every cache key. Bump it whenever the
-# renderer or ``equipose.crop`` changes the points it produces. 2: caches written before session 6 came from an older
-# crop (adaptive plane RANSAC, window crop) and differ from a fresh render by a few points per view.
-PIPELINE_VERSION = 2
-
-
-def keyed_cache_path(cache_dir, stem: str, settings: dict) -> tuple:
-    """(settings JSON key, ``<cache_dir>/<stem>_<sha1(key)[:10]>.npz``); creates the folder. Every setting and the
-    ``PIPELINE_VERSION`` are in the key, so a changed setting or pipeline names a new cache."""
-    key = json.dumps({**settings, "pipeline": PIPELINE_VERSION}, sort_keys=True, default=str)
-    cache_dir = pathlib.Path(cache_dir) if cache_dir else default_cache_dir()
-    cache_dir.mkdir(parents=True, exist_ok=True)
-    return key, cache_dir / f"{stem}_{hashlib.sha1(key.encode()).hexdigest()[:10]}.npz"
-
-
-def write_partial_cache(path, pts: list, Rs: list, ts: list, diags: list, inst: list, *, scale: float, category: str,
-                        key: str, seconds: float, **extra) -> pathlib.Path:
-    """Write rendered views atomically in the ``RenderedPartial`` layout: concatenated points [ΣP, 3] + offsets, poses
-    (metres), bbox diagonals, instance ids, ``scale`` (metres per model unit), category, settings key, frames/s."""
-    path = pathlib.Path(path)
-    offsets = np.concatenate([[0], np.cumsum([len(p) for p in pts])]).astype(np.int64)
-    tmp = path.with_suffix(".tmp.npz")
-    np.savez(tmp, points=np.concatenate(pts), offsets=offsets, rotations=np.stack(Rs), translations=np.stack(ts),
-             diags=np.array(diags), instances=np.array(inst), scale=np.float64(scale), category=np.str_(category),
-             settings=np.str_(key), frames_per_second=np.float64(len(pts) / max(seconds, 1e-9)), **extra)
-    tmp.replace(path)
-    return path

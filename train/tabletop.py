@@ -20,7 +20,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from equipose.errors import ConfigError
+from equipose.core.errors import ConfigError
 
 __all__ = ["TabletopSpec", "TABLETOP", "is_tabletop", "tabletop_sources", "ensure_tabletop_cache"]
 
@@ -69,9 +69,9 @@ def is_tabletop(category: str) -> bool:
 
 def tabletop_sources(root, category: str, split: str, seed: int = 0) -> list:
     """[(name, shape dict in metres (object frame), complete points [P, 3] metres)] for one category and split."""
-    from .data import load_modelnet
-    from .meshio import read_mesh
-    from .render import surfels_from_points
+    from equipose.train.modelnet import load_modelnet
+    from equipose.train.meshio import read_mesh
+    from equipose.train.render import surfels_from_points
     if category not in TABLETOP:
         raise ConfigError(f"{category!r} is not a tabletop category ({', '.join(TABLETOP)})")
     spec, root = TABLETOP[category], pathlib.Path(root)
@@ -101,7 +101,7 @@ def tabletop_sources(root, category: str, split: str, seed: int = 0) -> list:
         n, r = surfels_from_points(p)
         out.append((rel, {"points": p, "normals": n, "radii": r}, p))
     if spec.cylinders:                                                   # tins and tubes of every proportion
-        from .shapes import cylinder_mesh, cylinder_proportions, cylinder_surface
+        from equipose.train.shapes import cylinder_mesh, cylinder_proportions, cylinder_surface
         crng = np.random.default_rng([seed, 0, 78])
         for k, (r, h) in enumerate(cylinder_proportions(spec.cylinders, seed=[seed, 0, 79])):
             V, F = cylinder_mesh(r, h)
@@ -131,7 +131,8 @@ def ensure_tabletop_cache(root, category: str, split: str, cache_dir=None, views
     depends only on (seed, split, i). ``limit`` keeps the first K sources (tests, smoke runs).
     """
     from tqdm import tqdm
-    from .render import RenderSettings, keyed_cache_path, render_views, write_partial_cache
+    from equipose.train.cache_io import keyed_cache_path, write_partial_cache
+    from equipose.train.render import RenderSettings, render_views
     spec = TABLETOP.get(category)
     if spec is None:
         raise ConfigError(f"{category!r} is not a tabletop category ({', '.join(TABLETOP)})")

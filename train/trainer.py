@@ -23,15 +23,17 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from equipose.errors import ConfigError
+from equipose.core.errors import ConfigError
 
-from .checkpoint import load_checkpoint, save_checkpoint
-from .data import MODELNET_SCALE, category_symmetry, collate, default_data_root, make_dataset
-from .inference import calibrate_model, predict_torch
-from .calibration import apply_calibration
-from .metrics import rotation_errors
-from .distill import complete_clouds, distillation_loss, teacher_targets
-from .model import EquiPoseNet, axial_symmetry_loss, chamfer_min_of_60_loss
+from equipose.train.checkpoint import load_checkpoint, save_checkpoint
+from equipose.train.data import collate, make_dataset
+from equipose.train.modelnet import MODELNET_SCALE, category_symmetry, default_data_root
+from equipose.train.inference import calibrate_model, predict_torch
+from equipose.train.calibration import apply_calibration
+from equipose.eval.metrics import rotation_errors
+from equipose.train.distill import complete_clouds, teacher_targets
+from equipose.train.losses import axial_symmetry_loss, chamfer_min_of_60_loss, distillation_loss
+from equipose.train.model import EquiPoseNet
 
 __all__ = ["TrainConfig", "train"]
 

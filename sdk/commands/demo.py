@@ -25,10 +25,10 @@ def run(args) -> int:
     import cv2
     import numpy as np
 
-    from equipose.crop import auto_masks, check_intrinsics
-    from equipose.estimator import PoseEstimator
+    from equipose.preprocess import auto_masks, check_intrinsics
+    from equipose.runtime.estimator import PoseEstimator
     from equipose.models import demo_model_path
-    from equipose.overlay import draw_mask, to_bgr
+    from equipose.runtime.overlay import draw_mask, to_bgr
     from equipose.samples import sample_objects, sample_path
     from equipose.sources import FolderSource
 
@@ -57,8 +57,8 @@ def run(args) -> int:
     img = to_bgr(frame.rgb if frame.rgb is not None else frame.depth)
     for m in masks:
         img = draw_mask(img, m)
-    from equipose.crop import depth_to_metres, find_support_plane
-    from equipose.realdata import axis_table_angle
+    from equipose.preprocess import depth_to_metres, find_support_plane
+    from equipose.eval.realdata import axis_table_angle
     plane = find_support_plane(depth_to_metres(frame.depth, "mm"), K)            # (normal, offset) or None
     records = []
     for i, r in enumerate(results):

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import json
 
-from equipose.presets import get_preset, layer_costs, list_presets
+from equipose.core.presets import get_preset, layer_costs, list_presets
 
 
 def add_arguments(p):

@@ -13,7 +13,7 @@ import sys
 
 import numpy as np
 
-from equipose.errors import ConfigError, RegionError
+from equipose.core.errors import ConfigError, RegionError
 
 __all__ = ["add_arguments", "run", "parse_box", "load_mask"]
 
@@ -57,7 +57,7 @@ def add_arguments(p):
 
 
 def run(args) -> int:
-    from equipose.estimator import PoseEstimator
+    from equipose.runtime.estimator import PoseEstimator
     from equipose.sources import open_source
 
     if args.max_frames is not None and args.max_frames < 1:
@@ -110,8 +110,8 @@ def run(args) -> int:
 def _write_overlay(path, rec):
     import cv2
 
-    from equipose.crop import check_intrinsics
-    from equipose.overlay import to_bgr
+    from equipose.preprocess import check_intrinsics
+    from equipose.runtime.overlay import to_bgr
 
     f = rec.frame
     img = to_bgr(f.rgb if f.rgb is not None else f.depth)

@@ -9,7 +9,7 @@ from __future__ import annotations
 import pathlib
 import sys
 
-from equipose.errors import ConfigError
+from equipose.core.errors import ConfigError
 
 __all__ = ["add_arguments", "run"]
 
@@ -23,7 +23,7 @@ def add_arguments(p):
 
 
 def run(args) -> int:
-    from equipose.result import FrameError
+    from equipose.runtime.result import FrameError
     from equipose.sources import open_source
     from equipose.sources.folder import FolderWriter
 

@@ -3,16 +3,25 @@
 Each file's metadata carries its category, preset, scale, calibration and its own test metrics (``metrics``, written
 by ``equipose eval --model M --store-metrics``); ``X.int8.onnx`` is the dynamic-int8 copy of ``X.onnx``.
 ``cup-tabletop.onnx`` is the demo model. Trained on ModelNet40 (academic use only) and OCRTOC/YCB data: research use.
+
+Names follow ``arch.tag`` (as timm does): ``arch`` is the architecture preset (``equipose.core.presets``), ``tag``
+the weights (``category-mode``, plus ``.int8`` for the quantised copy), e.g. ``edge.cup-tabletop``. The short tag
+alone (``cup-tabletop``) stays a valid alias. ``WEIGHTS`` binds every shipped tag to its preset.
 """
 from __future__ import annotations
 
 import pathlib
 
-__all__ = ["MODELS_DIR", "DEMO_MODEL", "demo_model_path", "list_models", "model_names", "resolve_model", "model_card",
-           "model_cards"]
+__all__ = ["MODELS_DIR", "DEMO_MODEL", "WEIGHTS", "demo_model_path", "list_models", "model_names", "full_name",
+           "split_name", "resolve_model", "model_card", "model_cards"]
 
 MODELS_DIR = pathlib.Path(__file__).resolve().parent
 DEMO_MODEL = "cup-tabletop.onnx"
+
+# tag (file stem without precision) → architecture preset; the preset's configuration equals the file's model_config
+WEIGHTS = {tag: "edge" for tag in (
+    "airplane-complete", "airplane-partial", "bottle-complete", "bottle-partial", "bowl-tabletop", "can-tabletop",
+    "car-complete", "car-partial", "chair-complete", "chair-partial", "cup-tabletop", "sofa-complete", "sofa-partial")}
 
 
 def demo_model_path() -> pathlib.Path:
@@ -34,16 +43,38 @@ def model_names() -> list:
     return [p.stem.replace("_", "-") for p in list_models()]
 
 
+def split_name(name: str) -> tuple:
+    """``"edge.cup-tabletop.int8"`` → ``("edge", "cup-tabletop.int8")``; a bare tag gives ``(None, tag)``."""
+    head, _, rest = str(name).partition(".")
+    if rest and _key(rest).removesuffix(".int8") in {_key(t) for t in WEIGHTS}:
+        return head, rest
+    return None, str(name)
+
+
+def full_name(tag: str) -> str:
+    """The ``arch.tag`` name of a shipped model's tag, e.g. ``cup-tabletop.int8`` → ``edge.cup-tabletop.int8``."""
+    base = tag.removesuffix(".int8")
+    return f"{WEIGHTS[base]}.{tag}" if base in WEIGHTS else tag
+
+
 def resolve_model(name_or_path) -> pathlib.Path:
-    """A model file path from a path or a shipped model's name (case-, '-'/'_'- and '.onnx'-insensitive).
+    """A model file path from a path or a shipped model's name: ``arch.tag`` (``edge.cup-tabletop``) or the tag alone
+    (``cup-tabletop``); case-, '-'/'_'- and '.onnx'-insensitive.
 
     Raises ``ModelFormatError`` naming the shipped models when neither a file nor a known name matches.
     """
-    from equipose.errors import ModelFormatError
+    from equipose.core.errors import ModelFormatError
     path = pathlib.Path(name_or_path)
     if path.is_file():
         return path
-    key = _key(str(name_or_path))
+    arch, tag = split_name(str(name_or_path))
+    key = _key(tag)
+    if arch is not None:
+        base = _key(tag).removesuffix(".int8").replace("_", "-")
+        shipped = WEIGHTS.get(base)
+        if shipped != arch.lower():
+            raise ModelFormatError(f"model {str(name_or_path)!r}: {base} ships with preset {shipped!r} "
+                                   f"({shipped}.{base}), not {arch!r}")
     for p in list_models():
         if _key(p.name) == key:
             return p
@@ -52,21 +83,25 @@ def resolve_model(name_or_path) -> pathlib.Path:
 
 
 def model_card(path) -> dict:
-    """One model's listing (JSON-ready): name, path, category, mode, preset, precision, size, test metrics, training.
+    """One model's listing (JSON-ready): name, id (``arch.tag``), path, category, mode, preset, precision, size, test
+    metrics, training.
 
     Reads the metadata only (onnx protobuf via onnxruntime's model metadata; no inference). ``precision`` comes from
     the metadata key (older files: from the ``.int8`` name suffix).
     """
-    from equipose.estimator import PoseEstimator
+    from equipose.runtime.hypotheses import parse_symmetry
+    from equipose.runtime.session import read_metadata
     path = pathlib.Path(path)
-    est = PoseEstimator(path, threads=1)
-    meta = est.metadata
+    meta = read_metadata(path)
+    parse_symmetry(str(meta["symmetry"]))
     precision = meta.get("precision") or ("int8" if path.name.endswith(".int8.onnx") else "fp32")
     training = meta.get("training") or {}
-    return {"name": path.name.removesuffix(".onnx").replace("_", "-"), "path": str(path),
-            "category": est.category, "mode": "partial" if meta["partial"] else "complete", "preset": meta["preset"],
-            "precision": precision, "size_mb": round(path.stat().st_size / 1e6, 3), "num_points": est.num_points,
-            "scale_m_per_unit": est.scale, "symmetry": est.symmetry, "random_init": bool(meta["random_init"]),
+    name = path.name.removesuffix(".onnx").replace("_", "-")
+    return {"name": name, "id": full_name(name), "path": str(path),
+            "category": str(meta["category"]), "mode": "partial" if meta["partial"] else "complete",
+            "preset": meta["preset"], "precision": precision, "size_mb": round(path.stat().st_size / 1e6, 3),
+            "num_points": int(meta["num_points"]), "scale_m_per_unit": float(meta["scale"]),
+            "symmetry": str(meta["symmetry"]), "random_init": bool(meta["random_init"]),
             "metrics": meta.get("metrics") or {}, "training": training}
 
 

@@ -15,7 +15,7 @@ SAMPLES_DIR = pathlib.Path(__file__).resolve().parent
 
 def sample_path(name: str = "table_mug") -> pathlib.Path:
     """Folder of a bundled sample."""
-    from ..errors import SourceError
+    from equipose.core.errors import SourceError
     p = SAMPLES_DIR / name
     if not (p / "intrinsics.json").is_file():
         have = sorted(d.name for d in SAMPLES_DIR.iterdir() if (d / "intrinsics.json").is_file())

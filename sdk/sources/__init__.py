@@ -1,12 +1,15 @@
 """Depth frame sources (live OAK camera, .mcap replay, PNG folders, PCD files) and the common ``Frame`` type.
 
+A source is one module here that decorates its class with ``@register_source`` (see ``equipose.sources.base``).
+
 Everything here imports lazily: depthai and pypcd4 load only when a source that needs them is used.
 """
 from __future__ import annotations
 
-from .base import Frame, FrameSource, open_source
+from equipose.sources.base import Frame, FrameSource, open_source, register_source, registered_sources
 
-__all__ = ["Frame", "FrameSource", "open_source", "FolderSource", "FolderWriter", "PcdSource", "McapReplay",
+__all__ = ["Frame", "FrameSource", "open_source", "register_source", "registered_sources", "FolderSource", "FolderWriter",
+           "PcdSource", "McapReplay",
            "McapWriter", "OakCamera"]
 
 _LAZY = {

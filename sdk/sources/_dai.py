@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import os
 
-from ..errors import SourceError
+from equipose.core.errors import SourceError
 
 
 def import_depthai():

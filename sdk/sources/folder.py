@@ -14,9 +14,9 @@ import pathlib
 
 import numpy as np
 
-from ..errors import SourceError
-from ..result import FrameError
-from .base import Frame, FrameSource
+from equipose.core.errors import SourceError
+from equipose.runtime.result import FrameError
+from equipose.sources.base import Frame, FrameSource, register_source
 
 __all__ = ["FolderSource", "FolderWriter", "read_intrinsics", "write_intrinsics"]
 
@@ -45,6 +45,7 @@ def write_intrinsics(path, K, width: int, height: int, depth_unit="mm", **extra)
     pathlib.Path(path).write_text(json.dumps(d, indent=1))
 
 
+@register_source("folder", folder=lambda p: (p / "intrinsics.json").is_file())
 class FolderSource(FrameSource):
     """Frames from a PNG folder (layout in the module doc), in file-name order.
 

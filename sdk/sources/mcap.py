@@ -15,10 +15,10 @@ import time
 
 import numpy as np
 
-from ..errors import SourceError
-from ..result import FrameError
-from ._dai import import_depthai
-from .base import Frame, FrameSource
+from equipose.core.errors import SourceError
+from equipose.runtime.result import FrameError
+from equipose.sources._dai import import_depthai
+from equipose.sources.base import Frame, FrameSource, register_source
 
 __all__ = ["McapReplay", "McapWriter", "rgb_path_for", "mcap_message_count"]
 
@@ -60,6 +60,7 @@ def rgb_path_for(path) -> pathlib.Path:
     return p.with_name(p.stem + ".rgb.mcap")
 
 
+@register_source("mcap", suffixes=(".mcap",))
 class McapReplay(FrameSource):
     """Replay a depth ``.mcap`` recorded by ``McapWriter`` / ``equipose record`` / a depthai RecordMessage node.
 
@@ -195,7 +196,7 @@ class McapWriter:
         H, W = depth.shape
         K = np.asarray(frame.K, np.float64)
         if frame.image_size is not None and tuple(frame.image_size) != (W, H):
-            from ..crop import check_intrinsics
+            from equipose.preprocess import check_intrinsics
             K = check_intrinsics(K, (H, W), frame.image_size)                   # store K for the stored size
         ts = datetime.timedelta(seconds=float(frame.timestamp if frame.timestamp is not None else self.count / 30.0))
         m = dai.ImgFrame()

@@ -15,13 +15,14 @@ import os
 
 import numpy as np
 
-from ..errors import ConfigError, SourceError
-from ._dai import import_depthai
-from .base import Frame, FrameSource
+from equipose.core.errors import ConfigError, SourceError
+from equipose.sources._dai import import_depthai
+from equipose.sources.base import Frame, FrameSource, register_source
 
 __all__ = ["OakCamera"]
 
 
+@register_source("oak", aliases=("oak", "oak:", "camera"))
 class OakCamera(FrameSource):
     """Live frames from an OAK depth camera.
 

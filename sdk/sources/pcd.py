@@ -13,9 +13,9 @@ import pathlib
 
 import numpy as np
 
-from ..errors import SourceError
-from ..result import FrameError
-from .base import Frame, FrameSource
+from equipose.core.errors import SourceError
+from equipose.runtime.result import FrameError
+from equipose.sources.base import Frame, FrameSource, register_source
 
 __all__ = ["PcdSource", "read_organized_pcd", "read_organized_cloud", "intrinsics_from_organized"]
 
@@ -92,6 +92,7 @@ def read_organized_pcd(path) -> tuple:
     return cloud["depth"], cloud["K"], cloud["rgb"]
 
 
+@register_source("pcd", suffixes=(".pcd",), folder=lambda p: bool(sorted(p.glob("*.pcd"))))
 class PcdSource(FrameSource):
     """Frames from one organized ``.pcd`` file, a list of them, or a folder of them (sorted by name)."""
 

@@ -3,9 +3,9 @@ import numpy as np
 import pytest
 
 from conftest import K_VGA, sphere_scene, tabletop_scene
-from equipose.crop import (auto_masks, check_intrinsics, crop_points, fps_order, nearest_depth_cluster,
+from equipose.preprocess import (auto_masks, check_intrinsics, crop_points, fps_order, nearest_depth_cluster,
                            prepare_points, statistical_outlier_mask)
-from equipose.geometry import farthest_point_order
+from equipose.core.geometry import farthest_point_order
 
 CENTRE, RADIUS = np.array([0.02, -0.01, 0.8]), 0.05
 
@@ -57,7 +57,7 @@ def test_outliers_and_background_clusters_are_removed():
 
 
 def test_organized_outlier_mask_finds_flying_pixels_on_the_grid():
-    from equipose.crop import organized_outlier_mask
+    from equipose.preprocess import organized_outlier_mask
     rows, cols = np.mgrid[0:60:2, 0:80:2]                                        # a pitch-2 pixel grid
     rows, cols = rows.ravel(), cols.ravel()
     z = 0.8 + 0.001 * rows / 60                                                  # a gently tilted surface

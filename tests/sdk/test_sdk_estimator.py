@@ -6,7 +6,7 @@ import pytest
 
 from conftest import K_VGA, sphere_scene
 from equipose import errors
-from equipose.result import FrameError
+from equipose.runtime.result import FrameError
 
 CENTRE = np.array([0.0, 0.0, 0.8])
 
@@ -214,7 +214,7 @@ def test_batch_arguments_and_runtime_failures_are_typed(estimator, scene, monkey
 
 def test_symmetric_category_reports_axis_and_canonical_rotation(tiny_model, scene):
     from equipose import PoseEstimator
-    from equipose.hypotheses import canonicalise_rotation
+    from equipose.runtime.hypotheses import canonicalise_rotation
     depth, hit = scene
     est = PoseEstimator(tiny_model, threads=1)
     est.symmetry = "continuous:z"                                              # as if the metadata said so

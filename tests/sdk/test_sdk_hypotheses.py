@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from equipose.hypotheses import (apply_calibration, canonicalise_rotation, select_hypothesis,
+from equipose.runtime.hypotheses import (apply_calibration, canonicalise_rotation, select_hypothesis,
                                  symmetric_distance_deg)
 
 

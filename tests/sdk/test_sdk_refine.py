@@ -1,11 +1,11 @@
-"""ICP re-scoring of the best hypotheses (equipose.refine) and PoseEstimator(refine=K)."""
+"""ICP re-scoring of the best hypotheses (equipose.runtime.refine) and PoseEstimator(refine=K)."""
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
 from equipose.errors import ConfigError, InvalidPointsError
-from equipose.geometry import random_rotations, rotation_angle_deg
-from equipose.refine import refine_hypotheses
+from equipose.core.geometry import random_rotations, rotation_angle_deg
+from equipose.runtime.refine import refine_hypotheses
 
 
 def _tripod(rng, n):

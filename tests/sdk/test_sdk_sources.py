@@ -6,7 +6,7 @@ import pytest
 
 from conftest import K_VGA, sphere_scene
 from equipose import errors
-from equipose.result import FrameError
+from equipose.runtime.result import FrameError
 from equipose.sources import Frame, open_source
 
 

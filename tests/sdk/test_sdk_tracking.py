@@ -2,7 +2,7 @@
 import numpy as np
 
 from conftest import K_VGA, sphere_scene, tabletop_scene
-from equipose.result import FrameError
+from equipose.runtime.result import FrameError
 from equipose.sources import Frame
 
 

@@ -1,0 +1,56 @@
+"""``equipose eval``: the paper's table for one category and mode — ours (a checkpoint, or an exported ONNX model
+through ``equipose.PoseEstimator``) and ICP-60 + template from the same command; optional JSON and percentile PNG.
+
+Convention: rotation errors in degrees (symmetric categories: up-axis angle); translation errors divided by the
+instance's bbox diagonal; 5°0.05 = rotation ≤ 5° and translation ≤ 0.05; flip = rotation error > 150°.
+"""
+from __future__ import annotations
+
+from equipose.core.errors import ConfigError
+
+
+def add_arguments(p) -> None:
+    src = p.add_mutually_exclusive_group(required=True)
+    src.add_argument("--checkpoint", help="a trained (and calibrated) checkpoint")
+    src.add_argument("--model", help="an exported .onnx model (evaluated through the SDK)")
+    p.add_argument("--category", required=True)
+    p.add_argument("--mode", choices=["complete", "partial"], required=True)
+    p.add_argument("--json", help="write the table as JSON here")
+    p.add_argument("--plot", help="write a PNG of error-percentile curves here")
+    p.add_argument("--limit", type=int, help="first K test instances only")
+    p.add_argument("--icp-templates", dest="icp_templates", type=int, default=3)
+    p.add_argument("--icp-points", dest="icp_points", type=int, default=256, help="observed points used by ICP")
+    p.add_argument("--icp-iters", dest="icp_iters", type=int, default=20)
+    p.add_argument("--icp-samples", dest="icp_samples", type=int,
+                   help="run ICP on an evenly spaced subset of this many test samples (its row then carries 'n')")
+    p.add_argument("--data-root", dest="data_root")
+    p.add_argument("--cache-dir", dest="cache_dir")
+    p.add_argument("--threads", type=int, default=1, help="torch threads")
+    p.add_argument("--refine", type=int, default=None,
+                   help="with --model: ICP re-scoring of the K best hypotheses in the SDK (PoseEstimator(refine=K); "
+                        "default: the file's own setting, 'auto')")
+    p.add_argument("--store-metrics", dest="store_metrics", action="store_true",
+                   help="with --model: write this table into the model file's 'metrics' metadata (what "
+                        "'equipose models' lists)")
+
+
+def run(args) -> int:
+    from equipose.train.evaluate import evaluate, format_table, metrics_for_metadata, plot_percentiles, write_json
+    import torch
+    torch.set_num_threads(max(1, args.threads))
+    res = evaluate(category=args.category, mode=args.mode, checkpoint=args.checkpoint, model_path=args.model,
+                   data_root=args.data_root, limit=args.limit, icp_templates=args.icp_templates,
+                   icp_points=args.icp_points, icp_iters=args.icp_iters, icp_samples=args.icp_samples, cache_dir=args.cache_dir,
+                   refine=args.refine)
+    if args.store_metrics and not args.model:
+        raise ConfigError("--store-metrics needs --model (the metrics describe that file)")
+    print(format_table(res))
+    if args.store_metrics:
+        from equipose.export.onnx_export import update_metadata
+        update_metadata(args.model, metrics=metrics_for_metadata(res))
+        print(f"stored the metrics in {args.model}")
+    if args.json:
+        write_json(res, args.json)
+    if args.plot:
+        plot_percentiles(res, args.plot)
+    return 0

@@ -1,0 +1,130 @@
+"""The equipose ONNX metadata contract: keys, encoding (strings; JSON where structured) and validation.
+
+Written by ``equipose.export`` into ``ModelProto.metadata_props``; read by the SDK through onnxruntime's
+``custom_metadata_map``. Torch-free.
+
+Keys (all values are strings):
+    equipose_format         format version, currently "1"
+    equipose_version        package version that wrote the file
+    category                e.g. "airplane", "mug"
+    preset                  preset name (``equipose.core.presets``)
+    model_config            JSON of the preset's ``ModelConfig.to_dict()``
+    num_points              N, the model's input point count
+    num_canonical_points    M
+    scale                   metres per model unit (SDK divides metric points by it)
+    partial                 "true" | "false"
+    symmetry                "none" | "continuous:<x|y|z>" | "discrete:<spec>"
+    calibration_rotation    JSON 3×3: δR, learned frame → category frame (R_cat = R_pred · δRᵀ)
+    calibration_translation JSON 3: δt in model units (t_cat = t_pred − R_cat · δt)
+    anchors                 JSON 60×4: the group rotations as (w, x, y, z), in hypothesis order
+    random_init             "true" for random-weight models (tests, benchmarks)
+    training                JSON: training data summary (dataset, mode, steps, ...)
+    metrics                 JSON: metrics on the test split ({} if none)
+Optional keys (absent in older files): ``precision`` "fp32" | "int8" (weights of the graph's MatMul/Gemm);
+``refine_calibration`` JSON {k, iters, rotation 3×3, translation 3, ...}: the calibration for the SDK's ICP
+re-scoring of the k best hypotheses (``equipose calibrate --model M --refine K``).
+"""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+
+from equipose.core import icosahedral
+from equipose.core.errors import MetadataError, ModelVersionError
+
+__all__ = ["FORMAT_VERSION", "REQUIRED_KEYS", "encode_metadata", "decode_metadata"]
+
+FORMAT_VERSION = 1
+REQUIRED_KEYS = ("equipose_format", "equipose_version", "category", "preset", "model_config", "num_points",
+                 "num_canonical_points", "scale", "partial", "symmetry", "calibration_rotation",
+                 "calibration_translation", "anchors", "random_init", "training", "metrics")
+
+
+def encode_metadata(*, category: str, preset: str, model_config: dict, num_points: int, num_canonical_points: int,
+                    scale: float, partial: bool, symmetry: str = "none", calibration_rotation=None,
+                    calibration_translation=None, random_init: bool = False, training: dict | None = None,
+                    metrics: dict | None = None) -> dict:
+    """Build the ``{key: str}`` metadata dict of an equipose model."""
+    from equipose import __version__
+    R = np.eye(3) if calibration_rotation is None else np.asarray(calibration_rotation, dtype=float)
+    t = np.zeros(3) if calibration_translation is None else np.asarray(calibration_translation, dtype=float)
+    _check_symmetry(symmetry)
+    return {
+        "equipose_format": str(FORMAT_VERSION),
+        "equipose_version": __version__,
+        "category": str(category),
+        "preset": str(preset),
+        "model_config": json.dumps(model_config),
+        "num_points": str(int(num_points)),
+        "num_canonical_points": str(int(num_canonical_points)),
+        "scale": repr(float(scale)),
+        "partial": "true" if partial else "false",
+        "symmetry": symmetry,
+        "calibration_rotation": json.dumps(R.reshape(3, 3).tolist()),
+        "calibration_translation": json.dumps(t.reshape(3).tolist()),
+        "anchors": json.dumps(np.round(icosahedral.ANCHOR_QUATERNIONS, 9).tolist()),
+        "random_init": "true" if random_init else "false",
+        "training": json.dumps(training or {}),
+        "metrics": json.dumps(metrics or {}),
+        "precision": "fp32",
+    }
+
+
+def _check_symmetry(s: str):
+    if s == "none" or (s.startswith("continuous:") and s.split(":", 1)[1] in ("x", "y", "z")) or s.startswith("discrete:"):
+        return
+    raise MetadataError(f"symmetry must be 'none', 'continuous:<x|y|z>' or 'discrete:<spec>', got {s!r}")
+
+
+def decode_metadata(props: dict, source: str = "model") -> dict:
+    """Validate and parse a ``{key: str}`` map into python values. Raises ``ModelVersionError`` / ``MetadataError``.
+
+    Returns a dict with the same keys: ints for counts, float scale, bools, numpy arrays for the calibration
+    (``calibration_rotation`` [3, 3], ``calibration_translation`` [3]) and ``anchors`` [60, 4], dicts for JSON,
+    ``refine_calibration`` as a dict with arrays (None when absent).
+    """
+    if "equipose_format" not in props:
+        raise MetadataError(f"{source} is an ONNX model but not an equipose model (no 'equipose_format' metadata); "
+                            "export it with 'equipose export'")
+    try:
+        version = int(props["equipose_format"])
+    except ValueError:
+        raise MetadataError(f"{source}: equipose_format {props['equipose_format']!r} is not an integer") from None
+    if version != FORMAT_VERSION:
+        raise ModelVersionError(f"{source} has equipose metadata format {version}, this SDK reads format "
+                                f"{FORMAT_VERSION}; re-export the model with this equipose version or upgrade equipose")
+    missing = [k for k in REQUIRED_KEYS if k not in props]
+    if missing:
+        raise MetadataError(f"{source} lacks required metadata key(s) {', '.join(missing)}; re-export it with "
+                            "'equipose export'")
+    try:
+        out = dict(props)
+        for k in ("num_points", "num_canonical_points"):
+            out[k] = int(props[k])
+        out["equipose_format"] = version
+        out["scale"] = float(props["scale"])
+        for k in ("partial", "random_init"):
+            if props[k] not in ("true", "false"):
+                raise ValueError(f"{k} must be 'true' or 'false'")
+            out[k] = props[k] == "true"
+        for k in ("model_config", "training", "metrics"):
+            out[k] = json.loads(props[k])
+        out["calibration_rotation"] = np.asarray(json.loads(props["calibration_rotation"]), dtype=np.float64).reshape(3, 3)
+        out["calibration_translation"] = np.asarray(json.loads(props["calibration_translation"]), dtype=np.float64).reshape(3)
+        out["anchors"] = np.asarray(json.loads(props["anchors"]), dtype=np.float64).reshape(icosahedral.NUM_ROTATIONS, 4)
+    except (ValueError, TypeError, json.JSONDecodeError) as e:
+        raise MetadataError(f"{source}: malformed equipose metadata ({e}); re-export the model") from None
+    try:
+        rc = json.loads(props["refine_calibration"]) if props.get("refine_calibration") else None
+        out["refine_calibration"] = None if not rc else {
+            "k": int(rc["k"]), "iters": int(rc["iters"]),
+            "rotation": np.asarray(rc["rotation"], dtype=np.float64).reshape(3, 3),
+            "translation": np.asarray(rc["translation"], dtype=np.float64).reshape(3)}
+    except (ValueError, KeyError, TypeError) as e:
+        raise MetadataError(f"{source}: malformed refine_calibration metadata ({e}); re-run 'equipose calibrate "
+                            "--model'") from None
+    _check_symmetry(out["symmetry"])
+    if not out["scale"] > 0:
+        raise MetadataError(f"{source}: scale must be positive, got {out['scale']}")
+    return out

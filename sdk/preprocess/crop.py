@@ -1,0 +1,237 @@
+"""Depth frame + box/mask → cleaned object points (region, depth gating, nearest-cluster pick, outlier removal).
+
+Convention:
+    ``depth`` [H, W] in a declared unit, ``K`` [3, 3], boxes ``(x, y, w, h)`` pixels, masks [H, W] bool (see
+    ``equipose.preprocess.validate``). Points are ``[P, 3]`` float32 metres in the OpenCV camera frame (x right,
+    y down, z forward); pixel indices are ``[P, 2]`` int (row, col). The same code path serves deployment
+    (``PoseEstimator.predict``) and the partial-depth training renderer, so the model sees identical preprocessing.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from equipose.core.errors import DepthDtypeError, EmptyDepthError, RegionError, TooFewPointsError
+from equipose.preprocess.plane import find_support_plane
+from equipose.preprocess.sampling import MIN_POINTS
+from equipose.preprocess.validate import check_box, check_intrinsics, check_mask, depth_to_metres
+
+__all__ = ["CropResult", "crop_points", "statistical_outlier_mask", "organized_outlier_mask", "nearest_depth_cluster"]
+
+
+@dataclass
+class CropResult:
+    """Points of one object cropped from a depth frame.
+
+    Attributes:
+        points: [P, 3] float32 metres, camera frame.
+        pixels: [P, 2] int64 (row, col) of each point in the depth frame.
+        K: [3, 3] float64 intrinsics actually used (rescaled to the frame size if needed).
+        diagnostics: counts after each stage (``region``, ``valid``, ``gated``, ``subsampled``, ``cluster``,
+            ``inliers``) and the chosen ``cluster_depth_m`` (box crops) — for logging and debugging.
+    """
+    points: np.ndarray
+    pixels: np.ndarray
+    K: np.ndarray
+    diagnostics: dict = field(default_factory=dict)
+
+    def mask(self, shape) -> np.ndarray:
+        """[H, W] bool mask of the surviving pixels."""
+        m = np.zeros(shape, dtype=bool)
+        m[self.pixels[:, 0], self.pixels[:, 1]] = True
+        return m
+
+
+def statistical_outlier_mask(points: np.ndarray, k: int = 8, std_ratio: float = 2.0) -> np.ndarray:
+    """PCL-style statistical outlier removal.
+
+    Convention: ``points`` [P, 3] metres. A point is an inlier when its mean distance to its ``k`` nearest neighbours
+    is at most mean + ``std_ratio`` · std of that statistic over all points. Returns [P] bool inliers.
+    """
+    P = len(points)
+    if P <= k + 1:
+        return np.ones(P, dtype=bool)
+    tree = cKDTree(points)
+    d, _ = tree.query(points, k=k + 1)                                          # [P, k+1], column 0 = self
+    mean_d = d[:, 1:].mean(axis=1)                                              # [P]
+    thr = mean_d.mean() + std_ratio * mean_d.std()
+    return mean_d <= thr
+
+
+def organized_outlier_mask(points: np.ndarray, rows: np.ndarray, cols: np.ndarray, step: int = 1,
+                           std_ratio: float = 2.0) -> np.ndarray:
+    """Statistical outlier removal on the pixel grid (organized clouds): neighbours are the 8 adjacent grid cells.
+
+    Convention: ``points`` [P, 3] metres, back-projected from pixels (``rows``, ``cols``) [P] that lie on a regular
+    grid of pitch ``step`` (the crop's subsampling). For each point the mean distance to its present grid neighbours
+    is compared with mean + ``std_ratio`` · std of that statistic over all points; points with no neighbour at all
+    are outliers (isolated flying pixels). Same criterion as ``statistical_outlier_mask`` but the neighbourhood
+    comes from the image instead of a k-d tree, as 8 whole-grid shifts (7–15× faster than the tree on a crop).
+    Returns [P] bool inliers.
+    """
+    P = len(points)
+    if P < 10:
+        return np.ones(P, dtype=bool)
+    r = (rows - rows.min()) // step                                             # [P] grid coordinates
+    c = (cols - cols.min()) // step
+    h, w = int(r.max()) + 1, int(c.max()) + 1
+    grid = np.full((3, h + 2, w + 2), np.nan, np.float32)                       # [3, h+2, w+2], 1-cell NaN border
+    grid[:, r + 1, c + 1] = np.asarray(points, np.float32).T
+    core = grid[:, 1:-1, 1:-1]                                                  # [3, h, w] every cell
+    total = np.zeros((h, w), np.float32)                                        # [h, w] sum of neighbour distances
+    count = np.zeros((h, w), np.float32)                                        # [h, w] present neighbours
+    for dr in (-1, 0, 1):                                                       # whole-grid shifts, one per direction
+        for dc in (-1, 0, 1):
+            if dr == 0 and dc == 0:
+                continue
+            diff = grid[:, 1 + dr:h + 1 + dr, 1 + dc:w + 1 + dc] - core         # [3, h, w] (NaN = absent)
+            dist = np.sqrt(np.einsum("kij,kij->ij", diff, diff))                # [h, w]
+            ok = np.isfinite(dist)
+            total += np.where(ok, dist, np.float32(0.0))
+            count += ok
+    total, count = total[r, c], count[r, c]                                     # [P] at the points' cells
+    has = count > 0
+    if has.sum() < 10:
+        return has
+    mean_d = (total[has] / count[has]).astype(np.float64)                       # [P']
+    thr = mean_d.mean() + std_ratio * mean_d.std()
+    keep = np.zeros(P, dtype=bool)
+    keep[has] = mean_d <= thr
+    return keep
+
+
+def nearest_depth_cluster(z: np.ndarray, gap_m: float = 0.03, rel_gap: float = 0.03,
+                          min_fraction: float = 0.1) -> np.ndarray:
+    """Keep the nearest depth cluster that is big enough (background rejection inside a box).
+
+    Convention: ``z`` [P] metres. Sorted depths are split wherever consecutive values differ by more than
+    max(``gap_m``, ``rel_gap`` · z); the nearest cluster holding at least ``min_fraction`` of the points wins.
+    Returns [P] bool.
+    """
+    P = len(z)
+    if P == 0:
+        return np.zeros(0, dtype=bool)
+    order = np.argsort(z, kind="stable")                                        # [P]
+    zs = z[order]                                                               # [P] sorted
+    gaps = np.diff(zs) > np.maximum(gap_m, rel_gap * zs[:-1])                   # [P-1]
+    labels_sorted = np.concatenate([[0], np.cumsum(gaps)])                      # [P] cluster id, nearest = 0
+    counts = np.bincount(labels_sorted)                                         # [C]
+    big = np.nonzero(counts >= max(1, min_fraction * P))[0]
+    chosen = int(big[0]) if len(big) else int(np.argmax(counts))
+    keep = np.zeros(P, dtype=bool)
+    keep[order[labels_sorted == chosen]] = True
+    return keep
+
+
+# ----------------------------------------------------------------------------------------------------------------------
+# Crop
+
+def crop_points(depth, K, *, box=None, mask=None, depth_unit="mm", image_size=None, min_depth: float = 0.1,
+                max_depth: float = 10.0, max_points: int = 4096, reject_background: bool | None = None,
+                outlier_k: int = 8, outlier_std: float = 2.0, min_points: int = MIN_POINTS,
+                check_plausible: bool = True, remove_support_plane: bool | None = None, support_plane=None,
+                plane_height: float = 0.012, prevalidated: bool = False) -> CropResult:
+    """Depth frame + box/mask → cleaned object points in metres.
+
+    Convention: ``depth`` [H, W] in ``depth_unit``; ``K`` [3, 3] for ``image_size`` (W, H) or the frame itself;
+    ``box`` (x, y, w, h) pixels and/or ``mask`` [H, W] bool (both → their intersection; neither → whole frame).
+    Returns ``CropResult`` with points [P, 3] float32 metres in the camera frame.
+
+    Stages: validation → region → invalid-depth removal → depth gating [``min_depth``, ``max_depth``] m → support
+    plane removal (points less than ``plane_height`` above the frame's dominant plane, or beyond it, are dropped;
+    ``support_plane`` = precomputed (normal, offset) from ``find_support_plane``; default on for a box without a
+    mask, and skipped when the frame has no dominant plane or too few points would remain) → regular pixel-grid
+    subsampling to at most ``max_points`` → background rejection (nearest depth cluster; default on for a box
+    without a mask) → statistical outlier removal (``outlier_std``; 0 disables): on the pixel grid with its 8
+    neighbours (``organized_outlier_mask``) for the default ``outlier_k`` = 8, else k-d tree with k = ``outlier_k``.
+    Raises ``DepthDtypeError``, ``DepthUnitError``, ``EmptyDepthError``, ``IntrinsicsError``, ``RegionError``,
+    ``TooFewPointsError``. ``check_plausible=False`` skips the unit plausibility check (already-validated frames);
+    ``prevalidated=True`` takes ``depth`` as the float32 metres that ``depth_to_metres`` returned for this frame and
+    skips conversion and validation altogether (``PoseEstimator`` validates each frame once for all its objects).
+    """
+    if prevalidated:
+        d = depth                                                               # [H, W] float32 m, 0 = invalid
+        if not (isinstance(d, np.ndarray) and d.dtype == np.float32 and d.ndim == 2):
+            raise DepthDtypeError("prevalidated=True needs the [H, W] float32 metres from depth_to_metres, got "
+                                  f"{getattr(d, 'dtype', type(d))} {getattr(d, 'shape', '')}")
+    else:
+        d = depth_to_metres(depth, depth_unit, check_plausible=check_plausible) # [H, W] float32 m
+    H, W = d.shape
+    Kf = check_intrinsics(K, (H, W), image_size)                                # [3, 3]
+    y0, x0, y1, x1 = 0, 0, H, W
+    if box is not None:
+        x0, y0, x1, y1 = check_box(box, (H, W))
+    win = d[y0:y1, x0:x1]                                                       # [h, w] the box window (a view)
+    region = np.ones(win.shape, dtype=bool)                                     # [h, w]
+    if mask is not None:
+        region &= check_mask(mask, (H, W))[y0:y1, x0:x1]
+        if not region.any():
+            raise RegionError("the mask and the box do not overlap; pass a box that contains the mask")
+    diag = {"region": int(region.sum())}
+    valid = region & (win > 0)                                                  # [h, w]
+    diag["valid"] = int(valid.sum())
+    if diag["valid"] == 0:
+        raise EmptyDepthError(f"no valid depth inside the region ({diag['region']} pixels); the object may be too close, "
+                              "too far, or too dark/shiny for the depth camera — check the box/mask and the depth frame")
+    valid &= (win >= min_depth) & (win <= max_depth)
+    diag["gated"] = int(valid.sum())
+    if diag["gated"] < min_points:
+        raise TooFewPointsError(f"{diag['gated']} valid pixels within {min_depth}–{max_depth} m in the region (need "
+                                f"≥ {min_points}); enlarge the box/mask or change min_depth/max_depth")
+    if remove_support_plane is None:
+        remove_support_plane = box is not None and mask is None
+    if remove_support_plane:
+        plane = support_plane if support_plane is not None else find_support_plane(d, Kf)
+        if plane is not None:
+            n, off = plane
+            # height above the plane of every window pixel: z · (n · ray(row, col)) + off, the ray term separable
+            cx = (np.arange(x0, x1, dtype=np.float32) - Kf[0, 2]) / Kf[0, 0] * n[0]     # [w]
+            ry = (np.arange(y0, y1, dtype=np.float32) - Kf[1, 2]) / Kf[1, 1] * n[1] + n[2]  # [h]
+            h = win * (ry[:, None] + cx[None, :]).astype(np.float32) + np.float32(off)  # [h, w] m
+            above = valid & (h > plane_height)                                  # [h, w]
+            n_above = int(np.count_nonzero(above))
+            if n_above >= min_points:
+                valid = above
+                diag["above_plane"] = n_above
+    s = 1                                                                       # grid pitch of the kept pixels
+    n_valid = int(np.count_nonzero(valid))
+    if n_valid > max_points:                                                    # regular grid, deterministic
+        s = int(math.ceil(math.sqrt(n_valid / max_points)))
+        if np.count_nonzero(valid[::s, ::s]) < min_points:                      # pathological sparse layouts
+            rows, cols = np.nonzero(valid)
+            keep = np.zeros(len(rows), bool); keep[:: int(math.ceil(len(rows) / max_points))] = True
+            rows, cols = rows[keep], cols[keep]
+            s = 0                                                               # not a grid any more
+        else:
+            rows, cols = np.nonzero(valid[::s, ::s])                            # [P] on the lattice
+            rows, cols = rows * s, cols * s
+    else:
+        rows, cols = np.nonzero(valid)                                          # [P], [P] in the window
+    rows, cols = rows + y0, cols + x0                                           # frame pixels
+    diag["subsampled"] = int(len(rows))
+    z = d[rows, cols].astype(np.float64)                                        # [P]
+    x = (cols - Kf[0, 2] - Kf[0, 1] * (rows - Kf[1, 2]) / Kf[1, 1]) * z / Kf[0, 0]
+    y = (rows - Kf[1, 2]) * z / Kf[1, 1]
+    pts = np.stack([x, y, z], axis=1)                                           # [P, 3] m
+    if reject_background is None:
+        reject_background = box is not None and mask is None
+    if reject_background:
+        keep = nearest_depth_cluster(z)                                         # [P]
+        pts, rows, cols = pts[keep], rows[keep], cols[keep]
+        diag["cluster"] = int(keep.sum())
+        diag["cluster_depth_m"] = float(np.median(pts[:, 2]))
+    if outlier_std and outlier_std > 0:
+        if s and outlier_k == 8:                                                # organized: the 8 grid neighbours
+            keep = organized_outlier_mask(pts, rows - y0, cols - x0, step=s, std_ratio=outlier_std)  # [P]
+        else:
+            keep = statistical_outlier_mask(pts, k=outlier_k, std_ratio=outlier_std)  # [P]
+        pts, rows, cols = pts[keep], rows[keep], cols[keep]
+    diag["inliers"] = int(len(pts))
+    if len(pts) < min_points:
+        raise TooFewPointsError(f"only {len(pts)} points survived the crop (need ≥ {min_points}; stages: {diag}); "
+                                "enlarge the box/mask, move the camera closer, or check the depth frame")
+    return CropResult(points=pts.astype(np.float32), pixels=np.stack([rows, cols], 1).astype(np.int64), K=Kf,
+                      diagnostics=diag)

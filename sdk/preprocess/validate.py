@@ -1,0 +1,210 @@
+"""Input validation: depth units → metres, intrinsics, boxes, masks and point arrays.
+
+Convention:
+    Depth frames are ``[H, W]`` arrays. ``depth_unit="mm"`` (the default, depthai/RealSense) means integer
+    millimetres, 0 = invalid; ``"m"`` means float metres (0, NaN, Inf = invalid); a number means metres per stored
+    unit (e.g. ``1e-4`` for YCB-Video's depth scale 10000). Units are declared, never guessed: values implausible for
+    the declared unit raise ``DepthUnitError``.
+    Intrinsics ``K`` are ``[3, 3]`` (OpenCV pinhole, pixel centres at integer coordinates). ``image_size=(W, H)`` is the
+    size ``K`` was calibrated for; when the depth frame has another size of the same aspect ratio, ``K`` is rescaled.
+    Boxes are ``(x, y, w, h)`` in pixels (x = column of the left edge, y = row of the top edge); masks are ``[H, W]``
+    bool (or 0/non-zero) arrays. Points are ``[P, 3]`` float32 metres in the OpenCV camera frame (x right, y down,
+    z forward).
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from equipose.core.errors import (DepthDtypeError, DepthUnitError, EmptyDepthError, IntrinsicsError,
+                                   InvalidPointsError, RegionError)
+
+__all__ = ["PLAUSIBLE_DEPTH_M", "depth_to_metres", "check_intrinsics", "check_box", "check_mask", "check_points",
+           "check_regions"]
+
+PLAUSIBLE_DEPTH_M = (0.05, 30.0)  # median valid depth must fall in here for the declared unit to be believed
+
+
+def _unit_scale(depth_unit) -> float:
+    """metres per stored depth unit."""
+    if isinstance(depth_unit, str):
+        table = {"mm": 1e-3, "m": 1.0, "cm": 1e-2}
+        if depth_unit not in table:
+            raise DepthUnitError(f"depth_unit must be 'mm', 'm', 'cm' or metres per unit as a number, got {depth_unit!r}")
+        return table[depth_unit]
+    try:
+        s = float(depth_unit)
+    except (TypeError, ValueError):
+        raise DepthUnitError(f"depth_unit must be 'mm', 'm', 'cm' or a positive number, got {depth_unit!r}") from None
+    if not (math.isfinite(s) and s > 0):
+        raise DepthUnitError(f"depth_unit as a number is metres per stored unit and must be positive, got {s}")
+    return s
+
+
+def depth_to_metres(depth, depth_unit="mm", *, check_plausible: bool = True) -> np.ndarray:
+    """Validate a depth frame and convert it to float32 metres (invalid pixels → 0).
+
+    Convention: ``depth`` [H, W] (a trailing singleton channel is accepted), unit per ``depth_unit`` (see module doc).
+    Returns [H, W] float32 metres, 0 = invalid.
+    Raises ``DepthDtypeError`` (uint8, colour images, non-numeric), ``EmptyDepthError`` (empty or nothing valid),
+    ``DepthUnitError`` (values implausible for the unit).
+    """
+    if depth is None:
+        raise EmptyDepthError("depth is None; pass a [H, W] depth frame (e.g. cv2.imread(path, cv2.IMREAD_UNCHANGED))")
+    depth = np.asarray(depth)
+    if depth.ndim == 3 and depth.shape[2] == 1:
+        depth = depth[:, :, 0]                                                  # [H, W, 1] → [H, W]
+    if depth.dtype == np.uint8 or depth.dtype == np.int8:
+        raise DepthDtypeError(
+            f"depth is {depth.dtype} {depth.shape}: 8-bit images cannot hold depth. This usually means a 16-bit PNG "
+            "was read with cv2.imread(path) — read it with cv2.imread(path, cv2.IMREAD_UNCHANGED) to get uint16 mm")
+    if depth.ndim != 2:
+        raise DepthDtypeError(f"depth must be a single-channel [H, W] array, got shape {depth.shape}"
+                              + ("; this looks like a colour image — pass the depth frame instead" if depth.ndim == 3 else ""))
+    if depth.size == 0:
+        raise EmptyDepthError(f"depth frame is empty (shape {depth.shape}); check the source delivered a frame")
+    if depth.dtype == np.bool_ or not (np.issubdtype(depth.dtype, np.integer) or np.issubdtype(depth.dtype, np.floating)):
+        raise DepthDtypeError(f"depth dtype {depth.dtype} is not numeric; pass uint16 millimetres or float metres")
+    scale = _unit_scale(depth_unit)
+    d = np.multiply(depth, np.float32(scale), dtype=np.float32)                 # [H, W] metres
+    if np.issubdtype(depth.dtype, np.unsignedinteger):                          # always finite and ≥ 0: 0 stays 0
+        n_valid = int(np.count_nonzero(depth))
+    else:
+        valid = np.isfinite(d) & (d > 0)                                        # [H, W]
+        d[~valid] = 0.0
+        n_valid = int(np.count_nonzero(valid))
+    if n_valid == 0:
+        raise EmptyDepthError(f"depth frame {depth.shape} has no valid pixel (all 0, negative, NaN or Inf); "
+                              "check that the camera delivers depth and the scene is within its range")
+    if check_plausible:
+        sub = d[::4, ::4]                                                       # unit check on a 1/16 lattice
+        med = float(np.median(sub[sub > 0])) if (sub > 0).any() else float(np.median(d[valid]))
+        lo, hi = PLAUSIBLE_DEPTH_M
+        if not lo <= med <= hi:
+            raw = med / scale
+            hint = ""
+            if med < lo and scale >= 1e-3:
+                hint = " — values look like metres; pass depth_unit='m'" if raw < 30 else ""
+            elif med > hi and scale >= 1.0:
+                hint = " — values look like millimetres; pass depth_unit='mm'"
+            raise DepthUnitError(
+                f"median valid depth is {raw:.4g} stored units = {med:.4g} m with depth_unit={depth_unit!r}, outside the "
+                f"plausible {lo}–{hi} m{hint}. Declare the unit the frame really uses (depth_unit='mm', 'm' or metres "
+                "per unit as a number)")
+    return d
+
+
+def check_intrinsics(K, depth_shape, image_size=None) -> np.ndarray:
+    """Validate intrinsics against a frame and rescale them to it.
+
+    Convention: ``K`` [3, 3] pinhole ``[[fx, 0, cx], [0, fy, cy], [0, 0, 1]]`` (skew allowed); ``depth_shape`` (H, W);
+    ``image_size`` (W, H) that ``K`` belongs to, or None for "the frame's own size".
+    Returns [3, 3] float64 K for the frame. Raises ``IntrinsicsError``.
+    """
+    try:
+        K = np.asarray(K, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise IntrinsicsError("K must be a numeric 3×3 matrix [[fx, 0, cx], [0, fy, cy], [0, 0, 1]]") from None
+    if K.shape != (3, 3):
+        raise IntrinsicsError(f"K must be 3×3 [[fx, 0, cx], [0, fy, cy], [0, 0, 1]], got shape {K.shape}"
+                              + (" (pass np.array(K).reshape(3, 3) for a flat list of 9)" if K.size == 9 else ""))
+    if not np.all(np.isfinite(K)):
+        raise IntrinsicsError("K contains NaN or Inf")
+    if not (K[0, 0] > 0 and K[1, 1] > 0) or not np.allclose(K[2], [0, 0, 1]) or K[1, 0] != 0:
+        raise IntrinsicsError(f"K is not a pinhole matrix (need fx, fy > 0 and last row 0 0 1): {K.tolist()}")
+    H, W = int(depth_shape[0]), int(depth_shape[1])
+    K = K.copy()
+    if image_size is not None:
+        try:
+            w0, h0 = (int(v) for v in image_size)
+        except (TypeError, ValueError):
+            raise IntrinsicsError(f"image_size must be (width, height), got {image_size!r}") from None
+        if w0 <= 0 or h0 <= 0:
+            raise IntrinsicsError(f"image_size must be positive (width, height), got {image_size!r}")
+        if (w0, h0) != (W, H):
+            sx, sy = W / w0, H / h0
+            if abs(sx - sy) > 0.01 * max(sx, sy):
+                raise IntrinsicsError(
+                    f"K belongs to a {w0}×{h0} image but the depth frame is {W}×{H} (different aspect ratio); a crop "
+                    "cannot be undone from the size alone — pass the intrinsics of the depth frame itself")
+            # pixel centres at integer coordinates: x' = (x + 0.5) · s − 0.5
+            K[0, 0] *= sx; K[0, 1] *= sx; K[0, 2] = (K[0, 2] + 0.5) * sx - 0.5
+            K[1, 1] *= sy; K[1, 2] = (K[1, 2] + 0.5) * sy - 0.5
+    if not (0 < K[0, 2] < W - 1 and 0 < K[1, 2] < H - 1):
+        raise IntrinsicsError(
+            f"principal point ({K[0, 2]:.1f}, {K[1, 2]:.1f}) lies outside the {W}×{H} depth frame: K does not match the "
+            "image size. Pass image_size=(W, H) of the image K was calibrated for, or the intrinsics of this frame")
+    return K
+
+
+def check_box(box, shape) -> tuple:
+    """Validate ``(x, y, w, h)`` against a frame of ``shape`` (H, W); clip it to the frame.
+
+    Returns (x0, y0, x1, y1) int with x1/y1 exclusive. Raises ``RegionError`` if malformed, empty or outside the image.
+    """
+    H, W = int(shape[0]), int(shape[1])
+    try:
+        vals = np.asarray(box, dtype=np.float64).reshape(-1)
+    except (TypeError, ValueError):
+        raise RegionError(f"box must be (x, y, w, h) numbers, got {box!r}") from None
+    if vals.shape != (4,) or not np.all(np.isfinite(vals)):
+        raise RegionError(f"box must be 4 finite numbers (x, y, w, h) in pixels, got {box!r}")
+    x, y, w, h = vals
+    if w <= 0 or h <= 0:
+        raise RegionError(f"box {tuple(vals)} has non-positive width/height; boxes are (x, y, w, h), not (x0, y0, x1, y1)")
+    x0, y0 = int(math.floor(x)), int(math.floor(y))
+    x1, y1 = int(math.ceil(x + w)), int(math.ceil(y + h))
+    cx0, cy0, cx1, cy1 = max(x0, 0), max(y0, 0), min(x1, W), min(y1, H)
+    if cx1 - cx0 < 1 or cy1 - cy0 < 1:
+        raise RegionError(f"box (x={x:g}, y={y:g}, w={w:g}, h={h:g}) lies outside the {W}×{H} image; boxes are (x, y, w, h) "
+                          "in pixels of the depth frame (rescale boxes from another image size first)")
+    return cx0, cy0, cx1, cy1
+
+
+def check_mask(mask, shape) -> np.ndarray:
+    """Validate a mask for a frame of ``shape`` (H, W). Returns [H, W] bool. Raises ``RegionError``."""
+    m = np.asarray(mask)
+    if m.ndim == 3 and m.shape[2] in (1, 3, 4):
+        m = m[:, :, 0]                                                          # [H, W, C] → [H, W] (first channel)
+    if m.shape != tuple(shape[:2]):
+        raise RegionError(f"mask shape {np.asarray(mask).shape} does not match the depth frame {tuple(shape[:2])}; "
+                          "resize it with cv2.resize(..., interpolation=cv2.INTER_NEAREST)")
+    m = m.astype(bool)
+    if not m.any():
+        raise RegionError("mask is empty (no non-zero pixel); pass a mask that covers the object")
+    return m
+
+
+def check_points(points, name: str = "points") -> np.ndarray:
+    """Validate a point array. Convention: [P, 3] metres. Returns float64 [P, 3]. Raises ``InvalidPointsError``."""
+    try:
+        p = np.asarray(points, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise InvalidPointsError(f"{name} must be a numeric [P, 3] array") from None
+    if p.ndim != 2 or p.shape[1] != 3:
+        raise InvalidPointsError(f"{name} must be [P, 3] (x, y, z rows), got shape {p.shape}")
+    bad = ~np.all(np.isfinite(p), axis=1)                                       # [P]
+    if bad.any():
+        raise InvalidPointsError(f"{name} contain {int(bad.sum())} row(s) with NaN/Inf (first at index "
+                                 f"{int(np.argmax(bad))}); drop invalid points first, e.g. p[np.isfinite(p).all(1)]")
+    return p
+
+
+def check_regions(boxes=None, masks=None) -> list:
+    """Per-object regions ``[{"box": (x, y, w, h) | None, "mask": [H, W] | None}]`` from parallel lists.
+
+    Convention: ``boxes`` list of (x, y, w, h) pixels and/or ``masks`` list of [H, W] arrays (same length if both);
+    neither gives one whole-frame region. Raises ``RegionError`` on non-lists or a length mismatch.
+    """
+    try:
+        boxes = list(boxes) if boxes is not None else None
+        masks = list(masks) if masks is not None else None
+    except TypeError:
+        raise RegionError("boxes must be a list of (x, y, w, h) and masks a list of [H, W] arrays, one per "
+                          "object (use predict(..., box=...) for a single object)") from None
+    if boxes is not None and masks is not None and len(boxes) != len(masks):
+        raise RegionError(f"{len(boxes)} boxes but {len(masks)} masks; pass one of each per object")
+    n = len(boxes) if boxes is not None else (len(masks) if masks is not None else 1)
+    return [{"box": None if boxes is None else boxes[i], "mask": None if masks is None else masks[i]}
+            for i in range(n)]

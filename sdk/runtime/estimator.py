@@ -1,0 +1,293 @@
+"""``PoseEstimator``: an equipose ONNX model + the SDK pipeline (crop → FPS → ORT → selection → calibration).
+
+Convention:
+    Inputs are depth frames (see ``equipose.preprocess``) or metric points [P, 3] in the OpenCV camera frame. The model is
+    run on ``(p − centroid) / scale`` (model units, FPS-ordered to its N points); its hypotheses are calibrated into
+    the category frame (metadata δR, δt), the best one is selected, and translations are mapped back to metres:
+    ``t_m = t_model · scale + centroid``. Results are ``PoseResult`` (rotation category → camera, translation metres).
+    Timings are milliseconds (``time.perf_counter``).
+"""
+from __future__ import annotations
+
+import pathlib
+import time
+
+import numpy as np
+
+from equipose import preprocess as _crop
+from equipose.core.errors import ConfigError, EquiposeError, InvalidPointsError, ModelFormatError
+from equipose.runtime.hypotheses import apply_calibration, canonicalise_rotation, parse_symmetry, select_hypothesis
+from equipose.core.metadata import decode_metadata
+from equipose.core.presets import ModelConfig, total_macs
+from equipose.runtime.refine import refine_hypotheses
+from equipose.runtime.result import FrameError, PoseResult
+from equipose.runtime.session import INPUT_NAME, OUTPUT_NAMES, check_io, open_session
+
+__all__ = ["PoseEstimator", "INPUT_NAME", "OUTPUT_NAMES", "LIGHT_MODEL_MACS"]
+
+LIGHT_MODEL_MACS = 1e9      # below this per object, a single object runs on one onnxruntime thread (adaptive_threads)
+
+
+def _ms(t0: float) -> float:
+    return (time.perf_counter() - t0) * 1e3
+
+
+class PoseEstimator:
+    """Category-level 6D pose from depth with an equipose ONNX model (CPU, onnxruntime).
+
+    Args:
+        model_path: an ``.onnx`` file written by ``equipose export``.
+        threads: onnxruntime intra-op thread budget (None = onnxruntime's default, the physical core count).
+        adaptive_threads: run single objects of a light model (< ``LIGHT_MODEL_MACS`` per object: every edge preset) on
+            one thread and batches on the whole budget. Such a graph is hundreds of small kernels, where handing each
+            one to a second thread usually costs more than it saves (edge preset, 2 cores: one object 2.1 ms on one
+            thread, 2.6–3.1 ms on two in most processes; two objects 4.2 vs 3.0 ms; docs/benchmarks.md).
+            Attribute ``single_thread``: whether it applies (the 1-thread session is then opened with the main one).
+        crop_options: defaults for ``equipose.preprocess.crop_points`` (e.g. ``{"max_depth": 2.0}``).
+        top_k: hypotheses listed in each result.
+        refine: ICP re-scoring (``equipose.runtime.refine``): the ``refine`` best hypotheses are refined by ICP against the
+            model's own predicted canonical shape and re-ranked by residual (0 = off: the network's argmin).
+            "auto" (default): what the model file was calibrated for (metadata ``refine_calibration``, written by
+            ``equipose calibrate --model M --refine K``), else 0. With refinement the refined calibration is used
+            when the file has one.
+        refine_iters: ICP iterations per refined hypothesis (default: the file's, else 10).
+
+    Attribute ``runner``: None (onnxruntime, ``run_model``) or a callable with ``run_model``'s contract
+    (model points [B, N, 3] float32 → the 4 output arrays) used in its place by every ``predict*`` call; ``equipose
+    bench`` swaps in torch eager and ICP-60 this way, so all backends share one pre/post-processing path.
+
+    Raises ``ModelFormatError`` (missing file, not ONNX, not an equipose model, wrong inputs/outputs),
+    ``ModelVersionError`` (metadata format mismatch), ``MetadataError`` (missing/malformed keys).
+    """
+
+    def __init__(self, model_path, threads: int | None = None, *, crop_options: dict | None = None, top_k: int = 5,
+                 refine: int | str = "auto", refine_iters: int | None = None, adaptive_threads: bool = True):
+        path = pathlib.Path(model_path)
+        if not path.is_file() and isinstance(model_path, str) and "/" not in model_path and "\\" not in model_path:
+            from equipose.models import resolve_model                                  # a shipped model's name
+            path = resolve_model(model_path)
+        if not path.is_file():
+            raise ModelFormatError(f"model file {str(path)!r} does not exist; pass the path of an equipose .onnx model "
+                                   "(the demo model is equipose.models.demo_model_path())")
+        if threads is not None and (not isinstance(threads, int) or threads < 0):
+            raise ConfigError(f"threads must be None or a non-negative int, got {threads!r}")
+        self.path = path
+        self.session = open_session(path, threads)
+        props = dict(self.session.get_modelmeta().custom_metadata_map)
+        self.metadata = decode_metadata(props, source=path.name)
+        self.runner = None
+        self.category = str(self.metadata["category"])
+        self.partial = bool(self.metadata["partial"])
+        self.num_points = int(self.metadata["num_points"])
+        self.num_canonical_points = int(self.metadata["num_canonical_points"])
+        self.scale = float(self.metadata["scale"])
+        self.symmetry = str(self.metadata["symmetry"])
+        parse_symmetry(self.symmetry)                                           # unsupported spec → MetadataError
+        self.random_init = bool(self.metadata["random_init"])
+        self.calibration_rotation = np.asarray(self.metadata["calibration_rotation"], np.float64)     # [3, 3]
+        self.calibration_translation = np.asarray(self.metadata["calibration_translation"], np.float64)  # [3]
+        rcal = self.metadata["refine_calibration"]                              # None, or parsed and checked
+        if refine == "auto":
+            refine = rcal["k"] if rcal else 0
+        if refine_iters is None:
+            refine_iters = rcal["iters"] if rcal else 10
+        if isinstance(refine, bool) or not isinstance(refine, int) or refine < 0 or not isinstance(refine_iters, int) \
+                or refine_iters < 1:
+            raise ConfigError(f"refine must be 'auto' or an int ≥ 0 and refine_iters an int ≥ 1, got {refine!r}, "
+                              f"{refine_iters!r}")
+        self.refine, self.refine_iters = refine, refine_iters
+        if refine and rcal:                                                     # calibrated for refined poses
+            self.calibration_rotation, self.calibration_translation = rcal["rotation"], rcal["translation"]
+        self.crop_options = dict(crop_options or {})
+        # the model reads N FPS-ordered points: a crop of 4·N (≥ 1024) keeps FPS coverage and bounds crop/FPS cost
+        self.crop_options.setdefault("max_points", max(1024, 4 * self.num_points))
+        self.top_k = int(top_k)
+        self.static_batch = check_io(self.session, path.name, self.num_points)
+        macs = total_macs(ModelConfig.from_dict(self.metadata["model_config"]), partial=self.partial)
+        self.single_thread = bool(adaptive_threads) and threads != 1 and macs < LIGHT_MODEL_MACS
+        # opened now, so that the first single-object call does not pay for it (≈ 20 ms)
+        self._single_session = open_session(path, 1) if self.single_thread else None
+
+    def uses_single_thread(self, batch: int) -> bool:
+        """Whether a run of ``batch`` objects goes to the 1-thread session (``adaptive_threads``)."""
+        return self.single_thread and batch == 1
+
+    def __repr__(self):
+        return (f"PoseEstimator({self.path.name!r}, category={self.category!r}, N={self.num_points}, "
+                f"scale={self.scale} m/unit, symmetry={self.symmetry!r}, random_init={self.random_init})")
+
+    @property
+    def info(self) -> dict:
+        """Model facts from the metadata (JSON-ready)."""
+        keys = ("category", "preset", "num_points", "num_canonical_points", "scale", "partial", "symmetry",
+                "random_init", "equipose_version", "training", "metrics")
+        return {k: self.metadata[k] for k in keys}
+
+    # ------------------------------------------------------------------------------------------------------------------
+    def run_model(self, model_points: np.ndarray) -> dict:
+        """Raw ONNX run. Convention: ``model_points`` [B, N, 3] float32 model units → dict of the 4 outputs."""
+        x = np.ascontiguousarray(model_points, dtype=np.float32)
+        if x.ndim != 3 or x.shape[1:] != (self.num_points, 3):
+            raise InvalidPointsError(f"model input must be [B, {self.num_points}, 3], got {x.shape}")
+        if not np.all(np.isfinite(x)):
+            raise InvalidPointsError("model input contains NaN/Inf")
+        if self.static_batch is not None and x.shape[0] != self.static_batch:   # fixed-batch export: loop
+            parts = [self.run_model(x[i:i + 1]) for i in range(x.shape[0])]
+            return {k: np.concatenate([p[k] for p in parts]) for k in OUTPUT_NAMES}
+        session = self._single_session if self.uses_single_thread(x.shape[0]) else self.session
+        try:
+            outs = session.run(list(OUTPUT_NAMES), {INPUT_NAME: x})
+        except Exception as e:  # onnxruntime's own exception types (Fail, InvalidArgument, RuntimeException)
+            raise ModelFormatError(f"onnxruntime could not run {self.path.name} on input {x.shape} "
+                                   f"({type(e).__name__}: {str(e).splitlines()[0][:200]}); the model file may be "
+                                   "damaged or not follow the equipose contract — re-export it") from None
+        return dict(zip(OUTPUT_NAMES, outs))
+
+    def _finish(self, outputs: dict, b: int, prep: "_crop.PreparedPoints", *, prefer: int | None = None,
+                prefer_margin: float = 0.0) -> tuple:
+        """Outputs of batch item ``b`` → (PoseResult without timings, selection ms)."""
+        t0 = time.perf_counter()
+        R_all = outputs["hypothesis_rotations"][b]                              # [60, 3, 3]
+        t_all = outputs["hypothesis_translations"][b]                           # [60, 3] model units
+        s_all = outputs["hypothesis_scores"][b]                                 # [60]
+        canon = np.asarray(outputs["canonical_shape"][b], np.float64)           # [M, 3] learned frame, model units
+        if self.refine:                                                         # ICP re-scoring, learned frame
+            R_all, t_all, s_all = refine_hypotheses(prep.model_points, canon, R_all, t_all, s_all, k=self.refine,
+                                                    iters=self.refine_iters, bidirectional=not self.partial)
+        dR, dt = self.calibration_rotation, self.calibration_translation
+        R_cat, t_cat = apply_calibration(R_all, t_all, dR, dt)                  # [60, 3, 3], [60, 3]
+        sel = select_hypothesis(R_cat, t_cat, s_all, symmetry=self.symmetry, top_k=self.top_k, prefer=prefer,
+                                prefer_margin=prefer_margin)
+        U, _, Vt = np.linalg.svd(R_cat[sel.index])                              # float32 model output → exact SO(3)
+        R = U @ np.diag([1.0, 1.0, np.linalg.det(U @ Vt)]) @ Vt                 # [3, 3]
+        t_m = prep.to_metres(t_cat[sel.index])                                  # [3] metres
+        canon_obj = (canon @ dR.T + dt) * self.scale                            # [M, 3] category frame, metres
+        canon_cam = canon_obj @ R.T + t_m                                       # [M, 3] camera frame, metres
+        kind, axis, _ = parse_symmetry(self.symmetry)
+        res = PoseResult(
+            rotation=R, translation=t_m, score=sel.score, confidence=sel.confidence, ambiguous=sel.ambiguous,
+            canonical_shape=canon_cam, canonical_shape_object=canon_obj, hypothesis_index=sel.index, top_k=sel.top_k,
+            symmetry=self.symmetry, symmetry_axis=None if kind == "none" else R[:, axis].copy(),
+            rotation_canonical=canonicalise_rotation(R, self.symmetry), category=self.category,
+            random_init=self.random_init)
+        return res, _ms(t0)
+
+    # ------------------------------------------------------------------------------------------------------------------
+    def predict_points(self, points) -> PoseResult:
+        """Pose of one object from its points.
+
+        Convention: ``points`` [P, 3] metres, camera frame (P ≥ 64; NaN/Inf rejected). Returns ``PoseResult``.
+        Raises ``InvalidPointsError``, ``TooFewPointsError``.
+        """
+        return self.predict_points_batch([points])[0]
+
+    def predict_points_batch(self, point_sets) -> list:
+        """Poses of several objects in one onnxruntime run. Convention: a list of [P_i, 3] metres → list of results."""
+        if isinstance(point_sets, np.ndarray) and point_sets.ndim == 2:
+            raise InvalidPointsError("predict_points_batch takes a list of [P, 3] arrays; use predict_points for one")
+        t0 = time.perf_counter()
+        preps = [_crop.prepare_points(p, self.num_points, self.scale) for p in point_sets]
+        if not preps:
+            return []
+        fps_ms = _ms(t0) / len(preps)
+        return self._infer(preps, [None] * len(preps), [fps_ms] * len(preps), [0.0] * len(preps),
+                           [len(_crop.check_points(p)) for p in point_sets])
+
+    def _infer(self, preps, crops, fps_ms, crop_ms, counts, prefer=None, prefer_margin=0.0) -> list:
+        t0 = time.perf_counter()
+        x = np.stack([p.model_points for p in preps])                           # [B, N, 3]
+        outputs = (self.runner or self.run_model)(x)
+        inf_ms = _ms(t0)
+        results = []
+        for b, prep in enumerate(preps):
+            pref = None if prefer is None else prefer[b]
+            res, sel_ms = self._finish(outputs, b, prep, prefer=pref, prefer_margin=prefer_margin)
+            res.num_points = int(counts[b])
+            res.crop = {} if crops[b] is None else dict(crops[b].diagnostics)
+            res.timings = {"crop": crop_ms[b], "fps": fps_ms[b], "inference": inf_ms, "selection": sel_ms,
+                           "total": crop_ms[b] + fps_ms[b] + inf_ms + sel_ms, "batch": len(preps)}
+            results.append(res)
+        return results
+
+    def predict(self, depth, K, box=None, mask=None, depth_unit="mm", *, image_size=None, **crop_options) -> PoseResult:
+        """Pose of one object in a depth frame.
+
+        Convention: ``depth`` [H, W] (uint16 mm by default; declare other units), ``K`` [3, 3] (for ``image_size``
+        (W, H) if given, else for the frame), ``box`` (x, y, w, h) pixels and/or ``mask`` [H, W] bool.
+        Returns ``PoseResult`` with ``timings`` (crop, fps, inference, selection, total ms).
+        Raises the typed errors of ``equipose.preprocess`` (depth, intrinsics, region, too few points).
+        """
+        regions = [{"box": box, "mask": mask}]
+        return self.predict_batch(depth, K, regions=regions, depth_unit=depth_unit, image_size=image_size,
+                                  **crop_options)[0]
+
+    def crop(self, depth, K, box=None, mask=None, depth_unit="mm", *, image_size=None, **crop_options):
+        """``equipose.preprocess.crop_points`` with this estimator's crop defaults. Returns ``CropResult``."""
+        opts = {**self.crop_options, **crop_options}
+        return _crop.crop_points(depth, K, box=box, mask=mask, depth_unit=depth_unit, image_size=image_size, **opts)
+
+    def predict_batch(self, depth, K, boxes=None, masks=None, depth_unit="mm", *, regions=None, image_size=None,
+                      return_errors: bool = False, prefer=None, prefer_margin: float = 0.0, **crop_options) -> list:
+        """Poses of several objects in one frame, with a single onnxruntime run of batch B.
+
+        Convention: ``boxes`` list of (x, y, w, h) and/or ``masks`` list of [H, W] bool (same length if both), or
+        ``regions`` list of ``{"box": ..., "mask": ...}``. Returns a list of ``PoseResult`` in region order. With
+        ``return_errors=True`` an object whose crop fails yields a ``FrameError`` (object_id = its position) instead of
+        raising; frame-level errors (depth, intrinsics) still raise.
+        """
+        if regions is None:
+            regions = _crop.check_regions(boxes, masks)                         # [{box, mask}] per object
+        if not regions:
+            return []
+        t0 = time.perf_counter()
+        depth_m = _crop.depth_to_metres(depth, depth_unit)                      # [H, W] m — validates once per frame
+        Kf = _crop.check_intrinsics(K, depth_m.shape, image_size)               # [3, 3]
+        opts = {**self.crop_options, **crop_options}
+        wants_plane = opts.get("remove_support_plane")
+        if wants_plane is None:
+            wants_plane = any(r.get("box") is not None and r.get("mask") is None for r in regions)
+        if wants_plane and opts.get("support_plane") is None:                   # one plane fit per frame
+            plane = _crop.find_support_plane(depth_m, Kf)
+            if plane is None:
+                crop_options = {**crop_options, "remove_support_plane": False}
+            else:
+                crop_options = {**crop_options, "support_plane": plane}
+        shared_ms = _ms(t0) / len(regions)
+        preps, crops, fps_ms, crop_ms, counts, slots, out, prefs = [], [], [], [], [], [], [None] * len(regions), []
+        for i, reg in enumerate(regions):
+            try:
+                t1 = time.perf_counter()
+                c = self.crop(depth_m, Kf, box=reg.get("box"), mask=reg.get("mask"), depth_unit="m",
+                              prevalidated=True, **crop_options)
+                t2 = time.perf_counter()
+                prep = _crop.prepare_points(c.points, self.num_points, self.scale)
+                t3 = time.perf_counter()
+            except EquiposeError as e:
+                if not return_errors:
+                    raise
+                out[i] = FrameError.from_exception(-1, e, object_id=i)
+                continue
+            preps.append(prep); crops.append(c); counts.append(len(c.points)); slots.append(i)
+            crop_ms.append(shared_ms + (t2 - t1) * 1e3); fps_ms.append((t3 - t2) * 1e3)
+            prefs.append(None if prefer is None else prefer[i])
+        if preps:
+            results = self._infer(preps, crops, fps_ms, crop_ms, counts, prefer=prefs, prefer_margin=prefer_margin)
+            for i, r in zip(slots, results):
+                out[i] = r
+        return out
+
+    def predict_auto(self, depth, K, depth_unit="mm", *, image_size=None, return_errors: bool = False,
+                     auto_options: dict | None = None, **crop_options) -> list:
+        """Tabletop auto crop (``equipose.preprocess.auto_masks``) then ``predict_batch`` on every mask found."""
+        masks = _crop.auto_masks(depth, K, depth_unit=depth_unit, image_size=image_size, **(auto_options or {}))
+        if not masks:
+            return []
+        return self.predict_batch(depth, K, masks=masks, depth_unit=depth_unit, image_size=image_size,
+                                  return_errors=return_errors, **crop_options)
+
+    # ------------------------------------------------------------------------------------------------------------------
+    def track(self, source, **kwargs):
+        """Stream poses over a frame source; see ``equipose.runtime.tracking.track`` for the options. Yields ``TrackRecord``."""
+        from equipose.runtime.tracking import track
+        return track(self, source, **kwargs)
+

@@ -1,0 +1,91 @@
+"""ICP refinement and re-scoring of the network's best hypotheses against its own predicted canonical shape.
+
+Convention:
+    Poses map a template into an observation, x ≈ R @ y + t (column vectors), in one set of units (the SDK uses model
+    units: the observation is ``PreparedPoints.model_points``, the template the ``canonical_shape`` output in the
+    network's learned frame, i.e. the frame its raw hypotheses refer to, before calibration). Residual: mean squared
+    nearest-neighbour distance observation → template (plus template → observation when ``bidirectional``, for
+    complete inputs; a partial view covers only part of the template). Neighbours by scipy ``cKDTree``; all starts
+    run together (batched Kabsch via SVD). torch-free.
+"""
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from equipose.core.errors import InvalidPointsError
+
+__all__ = ["kabsch", "icp_multi", "refine_hypotheses"]
+
+
+def kabsch(src: np.ndarray, dst: np.ndarray) -> tuple:
+    """Batched least-squares rigid fit dst ≈ R src + t. src, dst [B, K, 3] → R [B, 3, 3], t [B, 3]."""
+    ms, md = src.mean(1, keepdims=True), dst.mean(1, keepdims=True)          # [B, 1, 3]
+    H = np.einsum("bki,bkj->bij", src - ms, dst - md)                         # [B, 3, 3]
+    U, _, Vt = np.linalg.svd(H)
+    d = np.sign(np.linalg.det(np.einsum("bij,bjk->bik", U, Vt).transpose(0, 2, 1)))
+    D = np.tile(np.eye(3), (len(H), 1, 1))
+    D[:, 2, 2] = d
+    R = np.einsum("bji,bjk,blk->bil", Vt, D, U)                               # V D Uᵀ
+    t = md[:, 0] - np.einsum("bij,bj->bi", R, ms[:, 0])
+    return R, t
+
+
+def icp_multi(observed: np.ndarray, template: np.ndarray, R0: np.ndarray, t0: np.ndarray, iters: int = 30,
+              bidirectional: bool = False, tree: cKDTree | None = None) -> tuple:
+    """ICP from several initial poses at once. R0 [J, 3, 3], t0 [J, 3] → (R [J,3,3], t [J,3], residual [J]).
+
+    Residual: mean squared nearest-neighbour distance (observation→template, plus the reverse if bidirectional).
+    """
+    x = np.asarray(observed, np.float64)                                       # [N, 3]
+    y = np.asarray(template, np.float64)                                       # [M, 3]
+    if x.ndim != 2 or x.shape[1] != 3 or len(x) < 3 or y.ndim != 2 or y.shape[1] != 3 or len(y) < 3:
+        raise InvalidPointsError(f"ICP needs [N≥3, 3] point arrays, got {x.shape} and {y.shape}")
+    tree = tree or cKDTree(y)
+    obs_tree = cKDTree(x) if bidirectional else None
+    R, t = np.array(R0, np.float64), np.array(t0, np.float64)
+    J, N, M = len(R), len(x), len(y)
+    for it in range(iters + 1):
+        local = np.einsum("jni,jik->jnk", (x[None] - t[:, None]), R)           # [J, N, 3] = Rᵀ(x − t)
+        d1, i1 = tree.query(local.reshape(-1, 3))
+        res = (d1.reshape(J, N) ** 2).mean(1)                                  # [J]
+        src, dst = y[i1.reshape(J, N)], np.broadcast_to(x, (J, N, 3))         # template pts ↔ observed pts
+        if bidirectional:
+            posed = np.einsum("mk,jik->jmi", y, R) + t[:, None]               # [J, M, 3] = R y + t
+            d2, i2 = obs_tree.query(posed.reshape(-1, 3))
+            res = res + (d2.reshape(J, M) ** 2).mean(1)
+            src = np.concatenate([src, np.broadcast_to(y, (J, M, 3))], 1)
+            dst = np.concatenate([dst, x[i2.reshape(J, M)]], 1)
+        if it == iters:
+            break
+        R, t = kabsch(src, np.ascontiguousarray(dst))
+    return R, t, res
+
+
+def refine_hypotheses(points: np.ndarray, template: np.ndarray, rotations: np.ndarray, translations: np.ndarray,
+                      scores: np.ndarray, k: int = 5, iters: int = 10, bidirectional: bool = False) -> tuple:
+    """ICP-refine the ``k`` best-scored hypotheses and re-score them by their ICP residual.
+
+    Convention: ``points`` [N, 3] observation, ``template`` [M, 3] the predicted canonical shape (learned frame),
+    ``rotations`` [A, 3, 3], ``translations`` [A, 3], ``scores`` [A] (lower better) — all in model units.
+    Returns new (rotations, translations, scores) of the same shapes: the k best are replaced by their refined poses
+    with the residual as score; the others keep their order but are ranked behind every refined one (their scores
+    are shifted above the largest residual), so selection picks among the refined ones and the confidence still
+    compares against distinct alternatives.
+    """
+    R = np.asarray(rotations, np.float64)
+    t = np.asarray(translations, np.float64)
+    s = np.asarray(scores, np.float64)
+    if R.ndim != 3 or R.shape[1:] != (3, 3) or t.shape != (len(R), 3) or s.shape != (len(R),):
+        raise InvalidPointsError(f"hypotheses must be [A, 3, 3], [A, 3], [A]; got {R.shape}, {t.shape}, {s.shape}")
+    k = int(min(max(k, 1), len(R)))
+    top = np.argsort(s)[:k]                                                    # [k]
+    Rk, tk, res = icp_multi(points, template, R[top], t[top], iters=iters, bidirectional=bidirectional)
+    R_out, t_out = R.copy(), t.copy()
+    R_out[top], t_out[top] = Rk, tk
+    rest = np.setdiff1d(np.arange(len(R)), top)
+    s_out = np.empty_like(s)
+    s_out[top] = res
+    if len(rest):
+        s_out[rest] = res.max() + 1e-9 + (s[rest] - s[rest].min())
+    return R_out, t_out, s_out

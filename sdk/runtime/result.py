@@ -1,0 +1,155 @@
+"""``PoseResult``: one object's pose, its quality signals and the data to draw it.
+
+Convention:
+    ``rotation`` [3, 3] and ``translation`` [3] (metres) map the category frame to the OpenCV camera frame:
+    ``x_cam = rotation @ x_obj + translation``. ``quaternion`` is (w, x, y, z) with w ≥ 0. ``canonical_shape`` is the
+    model's reconstruction posed in the camera frame [M, 3] metres; ``canonical_shape_object`` the same points in the
+    category frame [M, 3] metres (its extent defines the drawn 3D box). Timings are milliseconds.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from equipose.core.geometry import matrix_to_quaternion
+
+__all__ = ["PoseResult", "FrameError"]
+
+
+@dataclass
+class PoseResult:
+    """Pose of one object.
+
+    Attributes:
+        rotation: [3, 3] category frame → camera frame (after calibration).
+        translation: [3] metres, camera frame (the category frame's origin).
+        score: chamfer score of the chosen hypothesis (model units², lower better).
+        confidence: relative margin to the best hypothesis > 30° away (0 = a tie, 1 = no competitor).
+        ambiguous: a ≈180° flip scores almost as well (front/back or upside-down uncertain).
+        canonical_shape: [M, 3] metres, camera frame. canonical_shape_object: [M, 3] metres, category frame.
+        hypothesis_index: chosen hypothesis (0..59); top_k: best hypotheses (index, score, angle to best).
+        symmetry: metadata symmetry string; symmetry_axis: [3] camera-frame unit axis (None if not symmetric);
+            rotation_canonical: [3, 3] canonical representative of the symmetry class (== rotation if none).
+        category, num_points (points the crop produced), timings (ms: crop, fps, inference, selection, total),
+        crop: crop diagnostics, object_id (tracking), random_init (the model has random weights).
+    """
+    rotation: np.ndarray
+    translation: np.ndarray
+    score: float
+    confidence: float
+    ambiguous: bool
+    canonical_shape: np.ndarray
+    canonical_shape_object: np.ndarray
+    hypothesis_index: int
+    top_k: list = field(default_factory=list)
+    symmetry: str = "none"
+    symmetry_axis: np.ndarray | None = None
+    rotation_canonical: np.ndarray | None = None
+    category: str = ""
+    num_points: int = 0
+    timings: dict = field(default_factory=dict)
+    crop: dict = field(default_factory=dict)
+    object_id: int | None = None
+    random_init: bool = False
+    raw_rotation: np.ndarray | None = None      # before temporal smoothing (tracking only)
+    raw_translation: np.ndarray | None = None
+
+    def set_pose(self, rotation, translation):
+        """Replace the pose (e.g. after smoothing) and update everything derived from it (shape, symmetry axis)."""
+        from equipose.runtime.hypotheses import canonicalise_rotation, parse_symmetry
+        self.rotation = np.asarray(rotation, np.float64).reshape(3, 3)
+        self.translation = np.asarray(translation, np.float64).reshape(3)
+        self.canonical_shape = self.canonical_shape_object @ self.rotation.T + self.translation
+        kind, axis, _ = parse_symmetry(self.symmetry)
+        self.symmetry_axis = None if kind == "none" else self.rotation[:, axis].copy()
+        self.rotation_canonical = canonicalise_rotation(self.rotation, self.symmetry)
+
+    @property
+    def quaternion(self) -> np.ndarray:
+        """(w, x, y, z), w ≥ 0, of ``rotation``."""
+        return matrix_to_quaternion(self.rotation)
+
+    @property
+    def matrix(self) -> np.ndarray:
+        """[4, 4] homogeneous transform category → camera (metres)."""
+        T = np.eye(4)
+        T[:3, :3], T[:3, 3] = self.rotation, self.translation
+        return T
+
+    def extent(self, lo: float = 2.0, hi: float = 98.0) -> tuple:
+        """Robust axis-aligned box of the canonical shape in the category frame: (min [3], max [3]) metres."""
+        c = np.asarray(self.canonical_shape_object, np.float64)
+        return np.percentile(c, lo, axis=0), np.percentile(c, hi, axis=0)
+
+    def box_corners(self) -> np.ndarray:
+        """[8, 3] corners of the oriented 3D box in the camera frame, metres."""
+        mn, mx = self.extent()
+        corners = np.array([[x, y, z] for x in (mn[0], mx[0]) for y in (mn[1], mx[1]) for z in (mn[2], mx[2])])
+        return corners @ self.rotation.T + self.translation                     # [8, 3]
+
+    def to_dict(self, include_shape: bool = False) -> dict:
+        """JSON-ready dict (lists and floats). ``include_shape`` adds the canonical shape (camera frame)."""
+        d = {
+            "object_id": self.object_id,
+            "category": self.category,
+            "rotation": np.round(self.rotation, 6).tolist(),
+            "translation_m": np.round(self.translation, 6).tolist(),
+            "quaternion_wxyz": np.round(self.quaternion, 6).tolist(),
+            "score": float(self.score),
+            "confidence": float(self.confidence),
+            "ambiguous": bool(self.ambiguous),
+            "hypothesis_index": int(self.hypothesis_index),
+            "top_k": self.top_k,
+            "symmetry": self.symmetry,
+            "symmetry_axis": None if self.symmetry_axis is None else np.round(self.symmetry_axis, 6).tolist(),
+            "rotation_canonical": None if self.rotation_canonical is None else np.round(self.rotation_canonical, 6).tolist(),
+            "box_extent_m": [np.round(v, 5).tolist() for v in self.extent()],
+            "num_points": int(self.num_points),
+            "timings_ms": {k: round(float(v), 3) for k, v in self.timings.items()},
+            "crop": self.crop,
+            "random_init": bool(self.random_init),
+        }
+        if include_shape:
+            d["canonical_shape_m"] = np.round(self.canonical_shape, 5).tolist()
+        return d
+
+    def summary(self) -> str:
+        """One line: R as a rotation vector (deg), t (m), confidence, flags."""
+        from scipy.spatial.transform import Rotation
+        rv = Rotation.from_matrix(self.rotation).as_rotvec(degrees=True)
+        t = self.translation
+        flag = " AMBIGUOUS(flip?)" if self.ambiguous else ""
+        oid = "" if self.object_id is None else f"object {self.object_id}: "
+        return (f"{oid}{self.category or 'object'} R(rotvec°)=[{rv[0]:7.1f} {rv[1]:7.1f} {rv[2]:7.1f}] "
+                f"t(m)=[{t[0]:+.3f} {t[1]:+.3f} {t[2]:+.3f}] confidence={self.confidence:.2f}{flag}")
+
+    def plot(self, image, K, *, axis_length: float | None = None, color=(0, 255, 0), thickness: int = 2,
+             label: bool = True) -> np.ndarray:
+        """Draw the pose axes (x red, y green, z blue) and the oriented 3D box on a copy of ``image``.
+
+        Convention: ``image`` [H, W, 3] BGR uint8 (a [H, W] depth or grey image is colourised first); ``K`` [3, 3] of
+        that image. Returns the new BGR uint8 image.
+        """
+        from equipose.runtime.overlay import draw_pose
+        return draw_pose(image, K, self, axis_length=axis_length, color=color, thickness=thickness, label=label)
+
+
+@dataclass
+class FrameError:
+    """A frame (or one object in it) that could not be processed; streams carry on after it.
+
+    Attributes: frame_index, object_id (None = whole frame), error (exception class name), message.
+    """
+    frame_index: int
+    error: str
+    message: str
+    object_id: int | None = None
+
+    @classmethod
+    def from_exception(cls, frame_index: int, exc: BaseException, object_id=None) -> "FrameError":
+        return cls(frame_index=frame_index, error=type(exc).__name__, message=str(exc), object_id=object_id)
+
+    def to_dict(self) -> dict:
+        return {"frame_index": self.frame_index, "object_id": self.object_id, "error": self.error,
+                "message": self.message}

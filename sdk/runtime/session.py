@@ -1,0 +1,62 @@
+"""onnxruntime sessions of equipose models: opening, I/O checks, metadata without a full estimator.
+
+Convention: an equipose model has one input ``points`` [batch, N, 3] float32 (model units, FPS-ordered) and the four
+outputs of ``OUTPUT_NAMES``; its equipose metadata lives in the ONNX custom metadata map.
+"""
+from __future__ import annotations
+
+import pathlib
+
+from equipose.core.errors import ModelFormatError
+from equipose.core.metadata import decode_metadata
+
+__all__ = ["INPUT_NAME", "OUTPUT_NAMES", "open_session", "check_io", "read_metadata"]
+
+INPUT_NAME = "points"
+OUTPUT_NAMES = ("canonical_shape", "hypothesis_rotations", "hypothesis_translations", "hypothesis_scores")
+
+
+def open_session(path, threads: int | None):
+    """A CPU ``InferenceSession`` of ``path`` with ``threads`` intra-op threads (None: onnxruntime's default).
+
+    Raises ``ModelFormatError`` when onnxruntime cannot load the file.
+    """
+    import onnxruntime as ort
+
+    path = pathlib.Path(path)
+    opts = ort.SessionOptions()
+    if threads:
+        opts.intra_op_num_threads = int(threads)
+        opts.inter_op_num_threads = 1
+    opts.log_severity_level = 3
+    # no busy-waiting worker threads between runs: they would steal the cores from crop/FPS of the next frame
+    opts.add_session_config_entry("session.intra_op.allow_spinning", "0")
+    try:
+        return ort.InferenceSession(str(path), sess_options=opts, providers=["CPUExecutionProvider"])
+    except Exception as e:  # onnxruntime raises its own (pybind) exception types for unreadable files
+        raise ModelFormatError(f"{path.name} is not a loadable ONNX model ({type(e).__name__}: "
+                               f"{str(e).splitlines()[0][:200]}); pass an .onnx file written by 'equipose export'") from None
+
+
+def check_io(session, name: str, num_points: int):
+    """Check the session's inputs/outputs against the equipose layout; returns the static batch size (or None)."""
+    ins = session.get_inputs()
+    outs = {o.name: o for o in session.get_outputs()}
+    if len(ins) != 1 or ins[0].name != INPUT_NAME:
+        raise ModelFormatError(f"{name}: expected one input named {INPUT_NAME!r}, got {[i.name for i in ins]}; "
+                               "not an equipose model")
+    missing = [o for o in OUTPUT_NAMES if o not in outs]
+    if missing:
+        raise ModelFormatError(f"{name}: outputs {missing} missing (has {sorted(outs)}); not an equipose model")
+    shape = ins[0].shape                                                        # [batch, N, 3]
+    if len(shape) != 3 or shape[2] != 3 or (isinstance(shape[1], int) and shape[1] != num_points):
+        raise ModelFormatError(f"{name}: input shape {shape} does not match [batch, {num_points}, 3] "
+                               "from its metadata; re-export the model")
+    return shape[0] if isinstance(shape[0], int) else None
+
+
+def read_metadata(path) -> dict:
+    """The decoded equipose metadata of a model file (no inference)."""
+    path = pathlib.Path(path)
+    session = open_session(path, 1)
+    return decode_metadata(dict(session.get_modelmeta().custom_metadata_map), source=path.name)

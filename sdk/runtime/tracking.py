@@ -1,0 +1,144 @@
+"""Pose tracking over a frame stream: per-object identities, hypothesis re-use, temporal smoothing, error records.
+
+Convention:
+    Input: a frame source (``equipose.sources``; any iterable of ``Frame`` / ``FrameError``). Output: one
+    ``TrackRecord`` per frame with ``poses`` (``PoseResult`` with ``object_id``; rotation/translation smoothed, raw
+    values in ``raw_rotation`` / ``raw_translation``) and ``errors`` (``FrameError``). A frame that fails (bad depth,
+    bad intrinsics, unreadable file) produces an error record and the stream continues; an object whose crop fails
+    produces a per-object error and the others are still reported.
+    Smoothing is exponential: ``x_s = α · x_prev + (1 − α) · x_new`` for translations (metres) and the same geodesic
+    interpolation on SO(3) for rotations (α = ``smoothing``); a jump larger than ``reset_angle_deg`` /
+    ``max_jump_m`` resets the track state instead of being smoothed.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from equipose.core.errors import ConfigError, EquiposeError
+from equipose.runtime.result import FrameError
+
+__all__ = ["TrackRecord", "track"]
+
+
+@dataclass
+class TrackRecord:
+    """Output for one frame: ``poses`` (list of PoseResult) and ``errors`` (list of FrameError)."""
+    frame_index: int
+    timestamp: float | None = None
+    poses: list = field(default_factory=list)
+    errors: list = field(default_factory=list)
+    frame: object = None
+
+    @property
+    def ok(self) -> bool:
+        return not self.errors
+
+    def to_dict(self) -> dict:
+        return {"frame_index": self.frame_index, "timestamp": self.timestamp,
+                "poses": [p.to_dict() for p in self.poses], "errors": [e.to_dict() for e in self.errors]}
+
+
+def _blend_rotation(R_prev, R_new, alpha: float) -> np.ndarray:
+    """Geodesic interpolation: α = 1 keeps R_prev, α = 0 gives R_new."""
+    delta = Rotation.from_matrix(R_prev.T @ R_new).as_rotvec()                 # [3] rad, in the previous frame
+    return R_prev @ Rotation.from_rotvec((1.0 - alpha) * delta).as_matrix()
+
+
+def _regions_for(frame, est, boxes, masks, regions, auto, auto_options):
+    from equipose.preprocess import auto_masks
+    if regions is not None:
+        regs = regions(frame) if callable(regions) else regions
+        return [r if isinstance(r, dict) else {"box": r, "mask": None} for r in regs]
+    if auto:
+        ms = auto_masks(frame.depth, frame.K, depth_unit=frame.depth_unit, image_size=frame.image_size,
+                        **(auto_options or {}))
+        return [{"box": None, "mask": m} for m in ms]
+    if boxes is not None or masks is not None:
+        n = len(boxes) if boxes is not None else len(masks)
+        return [{"box": None if boxes is None else boxes[i], "mask": None if masks is None else masks[i]}
+                for i in range(n)]
+    return [{"box": None, "mask": None}]                                        # the whole frame is the object
+
+
+def track(est, source, *, boxes=None, masks=None, regions=None, auto: bool = False, smoothing: float = 0.5,
+          reuse_margin: float = 0.05, reset_angle_deg: float = 45.0, max_jump_m: float = 0.1,
+          max_frames: int | None = None, auto_options: dict | None = None, keep_frames: bool = False):
+    """Track object poses over ``source`` with the estimator ``est``. Yields ``TrackRecord`` per frame.
+
+    Regions per frame: ``regions`` (a list, or a callable ``frame -> list`` of boxes or ``{"box", "mask"}`` dicts —
+    e.g. a detector), fixed ``boxes`` / ``masks`` (object i keeps id i), ``auto=True`` (tabletop segmentation; ids by
+    nearest previous position within ``max_jump_m``), or none (the whole frame is one object).
+    ``reuse_margin``: the hypothesis nearest the object's previous rotation is kept when it scores within this relative
+    margin of the best one (prevents flip-flopping between near-equal hypotheses). ``smoothing`` α in [0, 1).
+    """
+    if not 0.0 <= smoothing < 1.0:
+        raise ConfigError(f"smoothing must be in [0, 1), got {smoothing}")
+    state: dict = {}                                                            # id → (R, t) smoothed
+    next_id = 0
+    it = iter(source)
+    index = -1
+    while True:
+        try:
+            frame = next(it)
+        except StopIteration:
+            return
+        except EquiposeError as e:                                              # the source itself failed: end
+            yield TrackRecord(frame_index=index + 1, errors=[FrameError.from_exception(index + 1, e)])
+            return
+        index += 1
+        if max_frames is not None and index >= max_frames:
+            return
+        if isinstance(frame, FrameError):
+            frame.frame_index = index
+            yield TrackRecord(frame_index=index, errors=[frame])
+            continue
+        rec = TrackRecord(frame_index=index, timestamp=getattr(frame, "timestamp", None),
+                          frame=frame if keep_frames else None)
+        try:
+            regs = _regions_for(frame, est, boxes, masks, regions, auto, auto_options)
+            fixed_ids = not auto
+            # predicted ids → preferred previous rotations
+            if fixed_ids:
+                ids = list(range(len(regs)))
+                prefer = [state[i][0] if i in state else None for i in ids]
+            else:
+                ids, prefer = None, None
+            outs = est.predict_batch(frame.depth, frame.K, regions=regs, depth_unit=frame.depth_unit,
+                                     image_size=frame.image_size, return_errors=True, prefer=prefer,
+                                     prefer_margin=reuse_margin) if regs else []
+        except EquiposeError as e:
+            rec.errors.append(FrameError.from_exception(index, e))
+            yield rec
+            continue
+        if ids is None:                                                         # auto: associate by position
+            ids, taken = [], set()
+            for out in outs:
+                best, best_d = None, max_jump_m
+                if not isinstance(out, FrameError):
+                    for oid, (_, t_prev) in state.items():
+                        dist = float(np.linalg.norm(out.translation - t_prev))
+                        if oid not in taken and dist < best_d:
+                            best, best_d = oid, dist
+                if best is None:                                                # a new object
+                    best, next_id = next_id, next_id + 1
+                taken.add(best)
+                ids.append(best)
+        for oid, out in zip(ids, outs):
+            if isinstance(out, FrameError):
+                out.frame_index, out.object_id = index, oid
+                rec.errors.append(out)
+                continue
+            out.object_id = oid
+            out.raw_rotation, out.raw_translation = out.rotation.copy(), out.translation.copy()
+            if oid in state and smoothing > 0:
+                R_prev, t_prev = state[oid]
+                angle = float(np.degrees(np.linalg.norm(Rotation.from_matrix(R_prev.T @ out.rotation).as_rotvec())))
+                if angle <= reset_angle_deg and np.linalg.norm(out.translation - t_prev) <= max_jump_m:
+                    out.set_pose(_blend_rotation(R_prev, out.rotation, smoothing),
+                                 smoothing * t_prev + (1.0 - smoothing) * out.translation)
+            state[oid] = (out.rotation.copy(), out.translation.copy())
+            rec.poses.append(out)
+        yield rec

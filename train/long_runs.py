@@ -1,0 +1,191 @@
+"""Training that accumulates across sessions: a tracked folder of resumable checkpoints with a manifest each.
+
+Layout (``train/state/`` in the repository, committed):
+    <name>/latest.pt       checkpoint of ``train/checkpoint.py`` (weights, Adam state, step)
+    <name>/config.json     the ``TrainConfig`` that ``equipose train --out <dir> --resume`` continues with
+    <name>/manifest.json   {"name", "role", "category", "mode", "preset", "steps", "data_version", "command",
+                           "teacher", "history": [{"date", "steps_before", "steps_after", "minutes", "val": ...}]}
+
+``<name>`` is the shipped model's name (``sdk/models/<name>.onnx``). A complete-shape model is a *teacher*; a
+partial-view model is a *student* distilled from ``<category>-complete`` in the same folder.
+
+Commands (``python -m equipose.train.long_runs ...``):
+    seed NAME ...            recover the shipped ONNX networks into resumable checkpoints (``train/onnx_weights.py``)
+    run --lane A,B,C --minutes M [--slice S]
+                             resume each named model for S minutes in turn until M minutes are spent (one process
+                             per core: torch uses 1 thread)
+    show                     print every manifest (steps, data version, last validation)
+"""
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import datetime
+import hashlib
+import json
+import pathlib
+import sys
+import time
+
+import numpy as np
+
+__all__ = ["STATE_DIR", "seed_model", "run_slice", "run_lane", "data_version", "read_manifest"]
+
+REPO = pathlib.Path(__file__).resolve().parents[1]
+STATE_DIR = REPO / "train" / "state"
+MODELS_DIR = REPO / "sdk" / "models"
+
+
+def data_version(root, category: str) -> str:
+    """Short hash of the category's ModelNet alignment file (changes when the shared data is re-aligned)."""
+    p = pathlib.Path(root) / "modelnet40_npy1024" / category / "alignment.json"
+    if not p.is_file():
+        return "none"
+    return hashlib.sha256(p.read_bytes()).hexdigest()[:12]
+
+
+def read_manifest(folder) -> dict:
+    p = pathlib.Path(folder) / "manifest.json"
+    return json.loads(p.read_text()) if p.is_file() else {}
+
+
+def _write_json(path: pathlib.Path, obj) -> None:
+    tmp = path.with_suffix(".tmp")
+    tmp.write_text(json.dumps(obj, indent=1) + "\n")
+    tmp.replace(path)
+
+
+def _calibration_inputs(root, category: str, partial: bool, n: int, count: int = 64, seed: int = 0) -> np.ndarray:
+    """[count, n, 3] model-unit training-like inputs for BatchNorm statistics: complete clouds, or the half of each
+    facing a random direction (a cheap stand-in for a rendered partial view)."""
+    from equipose.core.geometry import farthest_point_order, random_rotations
+    from .data import MODELNET_SCALE, load_complete
+    clouds, _ = load_complete(root, category, "train")
+    rng = np.random.default_rng(seed)
+    out = np.empty((count, n, 3), np.float32)
+    Rs = random_rotations(count, rng)
+    for k in range(count):
+        c = clouds[rng.integers(len(clouds))] / MODELNET_SCALE @ Rs[k].T               # [1024, 3]
+        if partial:
+            c = c[c[:, 2] < np.median(c[:, 2])]                                          # near half (camera at −z)
+        c = c - c.mean(0)
+        out[k] = c[farthest_point_order(c, n)] if len(c) >= n else c[rng.integers(0, len(c), n)]
+    return out
+
+
+def seed_model(name: str, *, state_dir=STATE_DIR, models_dir=MODELS_DIR, data_root=None, overwrite=False) -> pathlib.Path:
+    """Recover ``models_dir/<name>.onnx`` into ``state_dir/<name>/`` (checkpoint, config, manifest)."""
+    import torch
+    from .checkpoint import save_checkpoint, model_from_checkpoint
+    from .data import default_data_root
+    from .onnx_weights import checkpoint_from_onnx
+    from .trainer import TrainConfig
+    root = pathlib.Path(data_root or default_data_root())
+    folder = pathlib.Path(state_dir) / name
+    if (folder / "latest.pt").is_file() and not overwrite:
+        return folder / "latest.pt"
+    onnx_path = pathlib.Path(models_dir) / f"{name}.onnx"
+    probe = checkpoint_from_onnx(onnx_path)
+    cat, partial = probe["category"], bool(probe["partial"])
+    x = _calibration_inputs(root, cat, partial, probe["model_config"]["num_points"]) \
+        if (root / "modelnet40_npy1024" / cat).is_dir() else None
+    ck = checkpoint_from_onnx(onnx_path, x)
+    model, _ = model_from_checkpoint(ck)
+    folder.mkdir(parents=True, exist_ok=True)
+    old = ck["training"].get("config", {})
+    mode = "partial" if partial else "complete"
+    cfg = TrainConfig(category=cat, mode=mode, preset=ck["model_config"]["name"], steps=ck["step"],
+                      out=f"train/state/{name}", views=int(old.get("views", 10)), val_every=1000, ckpt_every=200,
+                      teacher=f"train/state/{cat}-complete/latest.pt" if partial else "",
+                      teacher_refine=int(old.get("teacher_refine", 5)), lr=float(old.get("lr", 5e-4)))
+    save_checkpoint(folder / "latest.pt", model, category=cat, scale=ck["scale"], symmetry=ck["symmetry"],
+                    step=ck["step"], calibration=ck["calibration"], training=ck["training"], metrics=ck["metrics"])
+    _write_json(folder / "config.json", dataclasses.asdict(cfg))
+    total = sum(int(h.get("steps", 0)) for h in ck["training"].get("lineage", [])) or ck["step"]
+    _write_json(folder / "manifest.json", {
+        "name": name, "role": "student" if partial else "teacher", "category": cat, "mode": mode,
+        "preset": cfg.preset, "steps": int(total), "step_counter": int(ck["step"]),
+        "data_version": data_version(root, cat), "teacher": f"{cat}-complete" if partial else None,
+        "command": f"equipose train --out train/state/{name} --resume --steps N",
+        "history": [{"date": datetime.date.today().isoformat(), "event": f"recovered from sdk/models/{name}.onnx",
+                     "steps_after": int(total)}]})
+    del torch
+    return folder / "latest.pt"
+
+
+def run_slice(name: str, minutes: float, *, state_dir=STATE_DIR, data_root=None, cache_dir=None, log=print) -> dict:
+    """Resume ``name`` for ``minutes`` of training steps; update its manifest; return the last validation record."""
+    from .data import default_data_root
+    from .trainer import TrainConfig, train
+    folder = pathlib.Path(state_dir) / name
+    man = read_manifest(folder)
+    cfg = TrainConfig.from_sources(str(folder / "config.json"))
+    root = data_root or cfg.data_root or str(default_data_root())
+    before = int(man.get("step_counter", 0))
+    repo = pathlib.Path(state_dir).resolve().parents[1]          # config paths are relative to the repository root
+    teacher = cfg.teacher
+    if teacher and not pathlib.Path(teacher).is_absolute():
+        teacher = str(repo / teacher)
+    cfg = dataclasses.replace(cfg, out=str(folder), steps=before + 1_000_000, minutes=float(minutes),
+                              val_every=10 ** 9, data_root=str(root), teacher=teacher,
+                              cache_dir=str(cache_dir or cfg.cache_dir or ""))
+    t0 = time.time()
+    ck_path = train(cfg, resume=True, log=log)
+    import torch
+    ck = torch.load(ck_path, map_location="cpu", weights_only=True)
+    after = int(ck["step"])
+    val = (ck.get("training", {}).get("history") or [{}])[-1]
+    man["steps"] = int(man.get("steps", before)) + (after - before)
+    man["step_counter"] = after
+    man["data_version"] = data_version(root, cfg.category)
+    man.setdefault("history", []).append({
+        "date": datetime.date.today().isoformat(), "steps_before": before, "steps_after": after,
+        "minutes": round((time.time() - t0) / 60.0, 1),
+        "val_rot_median_deg": val.get("val_rot_median_deg"), "val_acc_5deg": val.get("val_acc_5deg")})
+    _write_json(folder / "manifest.json", man)
+    return val
+
+
+def run_lane(names: list, minutes: float, slice_minutes: float, *, state_dir=STATE_DIR, cache_dir=None,
+             log=print) -> None:
+    """Round-robin ``run_slice`` over ``names`` until ``minutes`` of wall time have passed."""
+    end = time.time() + 60.0 * minutes
+    k = 0
+    while time.time() + 60.0 * min(2.0, slice_minutes) < end:
+        name = names[k % len(names)]
+        left = (end - time.time()) / 60.0
+        val = run_slice(name, min(slice_minutes, max(1.0, left - 1.0)), state_dir=state_dir, cache_dir=cache_dir,
+                        log=log)
+        log(f"[lane] {name}: val median {val.get('val_rot_median_deg')}  5° {val.get('val_acc_5deg')}")
+        k += 1
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m equipose.train.long_runs", description=__doc__.splitlines()[0])
+    sub = ap.add_subparsers(dest="cmd", required=True)
+    s = sub.add_parser("seed"); s.add_argument("names", nargs="+"); s.add_argument("--overwrite", action="store_true")
+    r = sub.add_parser("run"); r.add_argument("--lane", required=True); r.add_argument("--minutes", type=float, required=True)
+    r.add_argument("--slice", type=float, default=20.0)
+    r.add_argument("--cache-dir", help="render cache folder (default: data_cache/ beside the package)")
+    sub.add_parser("show")
+    for p in (s, r, ap):
+        p.add_argument("--state-dir", default=str(STATE_DIR)) if p is not ap else None
+    args = ap.parse_args(argv)
+    state = pathlib.Path(getattr(args, "state_dir", STATE_DIR))
+    if args.cmd == "seed":
+        for n in args.names:
+            print(n, "->", seed_model(n, state_dir=state, overwrite=args.overwrite))
+    elif args.cmd == "run":
+        run_lane([n.strip() for n in args.lane.split(",") if n.strip()], args.minutes, args.slice, state_dir=state,
+                 cache_dir=args.cache_dir)
+    else:
+        for m in sorted(state.glob("*/manifest.json")):
+            man = json.loads(m.read_text())
+            last = man.get("history", [{}])[-1]
+            print(f"{man['name']:<20} {man['role']:<8} steps {man['steps']:>7}  data {man['data_version']}  "
+                  f"last {last.get('date')} val {last.get('val_rot_median_deg')}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
