@@ -94,7 +94,9 @@ def test_seed_and_one_slice_accumulate_steps(tmp_path, data_root):
     cfg = json.loads((state / "bottle-complete" / "config.json").read_text())
     cfg.update(val_size=4, calib_size=8, train_limit=12)
     (state / "bottle-complete" / "config.json").write_text(json.dumps(cfg))
+    durable = (state / "bottle-complete" / "config.json").read_text()
     long_runs.run_slice("bottle-complete", 0.001, state_dir=state, data_root=data_root, log=lambda *a: None)
+    assert (state / "bottle-complete" / "config.json").read_text() == durable   # slice overrides stay transient
     after = json.loads((state / "bottle-complete" / "manifest.json").read_text())
     assert after["step_counter"] > before["step_counter"]
     assert after["steps"] - before["steps"] == after["step_counter"] - before["step_counter"]

@@ -58,7 +58,12 @@ def load_checkpoint(path) -> dict:
     path = pathlib.Path(path)
     if not path.is_file():
         raise ConfigError(f"checkpoint {path} does not exist; train one with 'equipose train' (runs/<name>/latest.pt)")
-    ckpt = torch.load(path, map_location="cpu", weights_only=False)
+    try:                                    # tensors, dicts and primitives only: a pickle cannot run code here
+        ckpt = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as e:  # pickle.UnpicklingError for forbidden globals, RuntimeError/EOFError for damaged files
+        raise ConfigError(f"{path} cannot be loaded as an equipose checkpoint ({type(e).__name__}: "
+                          f"{str(e).splitlines()[0][:160]}); only tensors, dicts and plain values are accepted — "
+                          "a file that needs more is not a checkpoint written by 'equipose train'") from None
     if not isinstance(ckpt, dict) or ckpt.get("format") != CHECKPOINT_FORMAT:
         raise ConfigError(f"{path} is not an equipose checkpoint (format {CHECKPOINT_FORMAT})")
     return ckpt

@@ -130,7 +130,11 @@ def run_slice(name: str, minutes: float, *, state_dir=STATE_DIR, data_root=None,
                               val_every=10 ** 9, data_root=str(root), teacher=teacher,
                               cache_dir=str(cache_dir or cfg.cache_dir or ""))
     t0 = time.time()
-    ck_path = train(cfg, resume=True, log=log)
+    durable = (folder / "config.json").read_text()                  # the trainer writes the slice's own config there
+    try:
+        ck_path = train(cfg, resume=True, log=log)
+    finally:
+        (folder / "config.json").write_text(durable)                # keep repository-relative paths and options
     import torch
     ck = torch.load(ck_path, map_location="cpu", weights_only=True)
     after = int(ck["step"])

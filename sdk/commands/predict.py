@@ -44,11 +44,12 @@ def add_arguments(p):
     p.add_argument("--model", "-m", help="equipose .onnx model (default: the bundled random-weight demo model)")
     p.add_argument("--source", "-s", required=True,
                    help="PNG folder (with intrinsics.json), .mcap recording, .pcd file/folder, or 'oak'")
-    g = p.add_mutually_exclusive_group()
+    g = p.add_mutually_exclusive_group(required=True)
     g.add_argument("--box", action="append", metavar="x,y,w,h", help="object box in pixels (repeat for several)")
     g.add_argument("--mask", action="append", metavar="FILE", help="object mask image (repeat for several)")
     g.add_argument("--auto", action="store_true", help="find objects on a table automatically (plane + clusters)")
     p.add_argument("--out", "-o", help="folder for overlay PNGs and results.jsonl")
+    p.add_argument("--overwrite", action="store_true", help="replace an existing results.jsonl in --out")
     p.add_argument("--json", action="store_true", help="print one JSON object per frame instead of text lines")
     p.add_argument("--threads", type=int, default=None, help="onnxruntime thread budget (default: all cores; a single object "
                    "of a light model runs on one)")
@@ -74,6 +75,8 @@ def run(args) -> int:
     masks = [load_mask(m) for m in args.mask] if args.mask else None
     out = pathlib.Path(args.out) if args.out else None
     if out:
+        if (out / "results.jsonl").exists() and not args.overwrite:
+            raise ConfigError(f"{out / 'results.jsonl'} exists; choose another --out or pass --overwrite")
         out.mkdir(parents=True, exist_ok=True)
     jsonl = open(out / "results.jsonl", "w") if out else None
     n_poses = 0

@@ -27,6 +27,7 @@ re-scoring of the k best hypotheses (``equipose calibrate --model M --refine K``
 from __future__ import annotations
 
 import json
+import math
 
 import numpy as np
 
@@ -125,6 +126,15 @@ def decode_metadata(props: dict, source: str = "model") -> dict:
         raise MetadataError(f"{source}: malformed refine_calibration metadata ({e}); re-run 'equipose calibrate "
                             "--model'") from None
     _check_symmetry(out["symmetry"])
-    if not out["scale"] > 0:
+    if not (math.isfinite(out["scale"]) and out["scale"] > 0):
         raise MetadataError(f"{source}: scale must be positive, got {out['scale']}")
+    rotations = [("calibration_rotation", out["calibration_rotation"], out["calibration_translation"])]
+    if out["refine_calibration"]:
+        rc = out["refine_calibration"]
+        rotations.append(("refine_calibration.rotation", rc["rotation"], rc["translation"]))
+    for key, R, t in rotations:
+        if not (np.all(np.isfinite(R)) and np.all(np.isfinite(t)) and np.allclose(R @ R.T, np.eye(3), atol=1e-4)
+                and np.linalg.det(R) > 0):
+            raise MetadataError(f"{source}: {key} is not a rotation matrix (or its translation is not finite): "
+                                f"{np.round(R, 4).tolist()}; re-run 'equipose calibrate --model' or re-export the model")
     return out

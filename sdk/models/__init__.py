@@ -10,9 +10,10 @@ alone (``cup-tabletop``) stays a valid alias. ``WEIGHTS`` binds every shipped ta
 """
 from __future__ import annotations
 
+import os
 import pathlib
 
-__all__ = ["MODELS_DIR", "DEMO_MODEL", "WEIGHTS", "demo_model_path", "list_models", "model_names", "full_name",
+__all__ = ["MODELS_DIR", "DEMO_MODEL", "WEIGHTS", "demo_model_path", "list_models", "resolve_model_file", "model_names", "full_name",
            "split_name", "resolve_model", "model_card", "model_cards"]
 
 MODELS_DIR = pathlib.Path(__file__).resolve().parent
@@ -80,6 +81,26 @@ def resolve_model(name_or_path) -> pathlib.Path:
             return p
     raise ModelFormatError(f"model {str(name_or_path)!r} is neither a file nor a shipped model; shipped: "
                            f"{', '.join(model_names()) or 'none'} (see 'equipose models')")
+
+
+def resolve_model_file(model_path) -> pathlib.Path:
+    """A shipped model's name (``equipose models``) or the path of an ``.onnx`` file → an existing file's path.
+
+    Raises ``ModelFormatError`` for a non-path argument, a directory or a missing file.
+    """
+    from equipose.core.errors import ModelFormatError
+    if not isinstance(model_path, (str, os.PathLike)):
+        raise ModelFormatError(f"model must be a shipped model's name or the path of an equipose .onnx file, got "
+                               f"{type(model_path).__name__} (see 'equipose models')")
+    path = pathlib.Path(model_path)
+    if not path.exists() and isinstance(model_path, str) and "/" not in model_path and "\\" not in model_path:
+        path = resolve_model(model_path)                                        # a shipped model's name
+    if path.is_dir():
+        raise ModelFormatError(f"{str(path)!r} is a directory; pass the path of an equipose .onnx file in it")
+    if not path.is_file():
+        raise ModelFormatError(f"model file {str(path)!r} does not exist; pass the path of an equipose .onnx model "
+                               "(the demo model is equipose.models.demo_model_path())")
+    return path
 
 
 def model_card(path) -> dict:

@@ -14,12 +14,12 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.spatial import cKDTree
 
-from equipose.core.errors import DepthDtypeError, EmptyDepthError, RegionError, TooFewPointsError
+from equipose.core.errors import ConfigError, DepthDtypeError, EmptyDepthError, RegionError, TooFewPointsError
 from equipose.preprocess.plane import find_support_plane
 from equipose.preprocess.sampling import MIN_POINTS
 from equipose.preprocess.validate import check_box, check_intrinsics, check_mask, depth_to_metres
 
-__all__ = ["CropResult", "crop_points", "statistical_outlier_mask", "organized_outlier_mask", "nearest_depth_cluster"]
+__all__ = ["CropResult", "check_crop_options", "crop_points", "statistical_outlier_mask", "organized_outlier_mask", "nearest_depth_cluster"]
 
 
 @dataclass
@@ -129,6 +129,37 @@ def nearest_depth_cluster(z: np.ndarray, gap_m: float = 0.03, rel_gap: float = 0
 # ----------------------------------------------------------------------------------------------------------------------
 # Crop
 
+_NUMBER_OPTIONS = {  # option: (lowest allowed, integer?)
+    "min_depth": (0.0, False), "max_depth": (0.0, False), "max_points": (MIN_POINTS, True), "outlier_k": (1, True),
+    "outlier_std": (0.0, False), "min_points": (1, True), "plane_height": (0.0, False)}
+_FLAG_OPTIONS = ("reject_background", "check_plausible", "remove_support_plane", "prevalidated")
+
+
+def check_crop_options(options: dict) -> dict:
+    """Validate ``crop_points`` options given as a dict (``PoseEstimator(crop_options=...)``, ``predict(**options)``).
+
+    Returns a copy. Raises ``ConfigError`` for unknown names, wrong types or out-of-range values.
+    """
+    if not isinstance(options, dict):
+        raise ConfigError(f"crop options must be a dict of crop_points options, got {type(options).__name__}")
+    known = set(_NUMBER_OPTIONS) | set(_FLAG_OPTIONS) | {"support_plane"}
+    unknown = sorted(set(options) - known)
+    if unknown:
+        raise ConfigError(f"unknown crop option(s) {', '.join(unknown)}; known: {', '.join(sorted(known))}")
+    for k, v in options.items():
+        if k in _NUMBER_OPTIONS:
+            low, integer = _NUMBER_OPTIONS[k]
+            ok = isinstance(v, (int, np.integer)) if integer else isinstance(v, (int, float, np.integer, np.floating))
+            if isinstance(v, bool) or not ok or not (math.isfinite(float(v)) and v >= low):
+                raise ConfigError(f"crop option {k} must be {'an int' if integer else 'a number'} ≥ {low}, got {v!r}")
+        elif k in _FLAG_OPTIONS and v is not None and not isinstance(v, (bool, np.bool_)):
+            raise ConfigError(f"crop option {k} must be True, False or None, got {v!r}")
+    if options.get("min_depth", 0.1) >= options.get("max_depth", 10.0):
+        raise ConfigError(f"crop option min_depth ({options.get('min_depth', 0.1)}) must be below max_depth "
+                          f"({options.get('max_depth', 10.0)})")
+    return dict(options)
+
+
 def crop_points(depth, K, *, box=None, mask=None, depth_unit="mm", image_size=None, min_depth: float = 0.1,
                 max_depth: float = 10.0, max_points: int = 4096, reject_background: bool | None = None,
                 outlier_k: int = 8, outlier_std: float = 2.0, min_points: int = MIN_POINTS,
@@ -152,6 +183,8 @@ def crop_points(depth, K, *, box=None, mask=None, depth_unit="mm", image_size=No
     ``prevalidated=True`` takes ``depth`` as the float32 metres that ``depth_to_metres`` returned for this frame and
     skips conversion and validation altogether (``PoseEstimator`` validates each frame once for all its objects).
     """
+    check_crop_options({"min_depth": min_depth, "max_depth": max_depth, "max_points": max_points, "outlier_k": outlier_k,
+                        "outlier_std": outlier_std, "min_points": min_points, "plane_height": plane_height})
     if prevalidated:
         d = depth                                                               # [H, W] float32 m, 0 = invalid
         if not (isinstance(d, np.ndarray) and d.dtype == np.float32 and d.ndim == 2):

@@ -12,11 +12,14 @@ import numpy as np
 
 from equipose.core.errors import InvalidPointsError, TooFewPointsError
 from equipose.core.geometry import farthest_point_order
-from equipose.preprocess.validate import check_points
+from equipose.preprocess.validate import PLAUSIBLE_DEPTH_M, check_points
 
-__all__ = ["MIN_POINTS", "PreparedPoints", "fps_order", "prepare_points"]
+__all__ = ["MIN_POINTS", "MIN_DISTINCT", "SPREAD_RANGE", "PreparedPoints", "check_spread", "fps_order", "prepare_points"]
 
 MIN_POINTS = 64                 # fewer points than this after the crop cannot give a meaningful pose
+MIN_DISTINCT = 16               # fewer distinct positions than this: repeated points, not a surface
+SPREAD_RANGE = (0.01, 100.0)    # accepted RMS radius of an object, model units (trained objects: ≈ 0.5–1)
+MIN_FLATNESS = 1e-3             # second / first principal spread below this: collinear points
 
 
 @dataclass
@@ -40,6 +43,31 @@ class PreparedPoints:
         return np.asarray(x_model, np.float64) * self.scale + self.centre_m
 
 
+def check_spread(points_model: np.ndarray, centre_m: np.ndarray, scale: float) -> None:
+    """Refuse degenerate or wrongly scaled object points.
+
+    Convention: ``points_model`` [P, 3] centred model units (``(p − centre) / scale``), ``centre_m`` [3] metres. The RMS
+    radius must lie in ``SPREAD_RANGE`` model units (the networks are trained on objects of radius ≈ 0.5–1), the cloud
+    must not be a line (second principal axis ≥ ``MIN_FLATNESS`` × the first; planar views are fine) and the centre
+    must be nearer than ``PLAUSIBLE_DEPTH_M[1]``. Raises ``InvalidPointsError``.
+    """
+    radius = float(np.sqrt(np.mean(np.einsum("ij,ij->i", points_model, points_model))))
+    dist = float(np.linalg.norm(centre_m))
+    if dist > PLAUSIBLE_DEPTH_M[1] or radius > SPREAD_RANGE[1]:
+        raise InvalidPointsError(
+            f"points centred {dist:.4g} m from the camera with an RMS radius of {radius * scale:.4g} m are implausible "
+            f"for this model (objects of about {scale:.3g} m): they look like millimetres — pass metres "
+            "(points_mm / 1000)")
+    if not radius >= SPREAD_RANGE[0]:
+        raise InvalidPointsError(
+            f"the points span only {radius * scale:.3g} m (RMS radius) while this model expects objects of about "
+            f"{scale:.3g} m: the cloud is degenerate (a point, or wrongly scaled) — check the crop and the units")
+    sv = np.sqrt(np.clip(np.linalg.eigvalsh(points_model.T @ points_model), 0, None))[::-1]  # [3] principal spreads
+    if sv[1] < MIN_FLATNESS * sv[0]:
+        raise InvalidPointsError(f"the points lie on a line (principal spreads {np.round(sv * scale, 6).tolist()} m); "
+                                 "a pose needs a surface — check the crop or the point source")
+
+
 def fps_order(points: np.ndarray, n: int, start: int = 0) -> np.ndarray:
     """``geometry.farthest_point_order`` with the SDK's typed error. Convention: [P, 3] → indices [n] (nested)."""
     if len(points) == 0:
@@ -55,7 +83,8 @@ def prepare_points(points_m, num_points: int, scale: float, *, min_points: int =
     ``(p − centre) / scale`` with ``centre`` the centroid in metres; FPS-ordered (nested prefixes, as the model's
     in-graph downsampling expects), starting from the point farthest from the centroid. When P > ``max_fps_input`` the
     points are first thinned with a regular stride (deterministic). When P < N the FPS order repeats (wraps).
-    Raises ``InvalidPointsError`` (shape, NaN/Inf), ``TooFewPointsError`` (P < ``min_points``).
+    Raises ``InvalidPointsError`` (shape, NaN/Inf, degenerate or wrongly scaled clouds: ``check_spread``, fewer than
+    ``MIN_DISTINCT`` distinct positions), ``TooFewPointsError`` (P < ``min_points``).
     """
     p = check_points(points_m)                                                  # [P, 3] float64 m
     if not (isinstance(num_points, (int, np.integer)) and num_points > 0):
@@ -70,8 +99,15 @@ def prepare_points(points_m, num_points: int, scale: float, *, min_points: int =
         base = base[:: int(math.ceil(P / max_fps_input))]                       # [P'] regular thinning
     q = p[base]                                                                 # [P', 3]
     centre = q.mean(axis=0)                                                     # [3] m
-    qc = ((q - centre) / float(scale)).astype(np.float32)                       # [P', 3] model units
+    qc64 = (q - centre) / float(scale)                                          # [P', 3] model units
+    check_spread(qc64, centre, float(scale))
+    qc = qc64.astype(np.float32)                                                # [P', 3]
     start = int(np.argmax(np.einsum("ij,ij->i", qc, qc)))
     idx = fps_order(qc, int(num_points), start=start)                          # [N]
+    head = qc[idx[:MIN_DISTINCT]].astype(np.float64)                            # FPS picks distinct points first
+    gaps = np.linalg.norm(head[:, None] - head[None], axis=2) + np.eye(len(head))
+    if len(head) == MIN_DISTINCT and gaps.min() <= 1e-9:
+        raise InvalidPointsError(f"the {P} points hold fewer than {MIN_DISTINCT} distinct positions (repeated points); "
+                                 "a pose needs the object's surface — check the crop or the point source")
     return PreparedPoints(model_points=np.ascontiguousarray(qc[idx]), centre_m=centre, scale=float(scale),
                           order=base[idx])

@@ -20,10 +20,12 @@ import numpy as np
 from equipose.core.errors import (DepthDtypeError, DepthUnitError, EmptyDepthError, IntrinsicsError,
                                    InvalidPointsError, RegionError)
 
-__all__ = ["PLAUSIBLE_DEPTH_M", "depth_to_metres", "check_intrinsics", "check_box", "check_mask", "check_points",
+__all__ = ["PLAUSIBLE_DEPTH_M", "FOCAL_RANGE", "CENTRE_TOLERANCE", "depth_to_metres", "check_intrinsics", "check_box", "check_mask", "check_points",
            "check_regions"]
 
 PLAUSIBLE_DEPTH_M = (0.05, 30.0)  # median valid depth must fall in here for the declared unit to be believed
+FOCAL_RANGE = (0.05, 50.0)        # fx, fy in units of the frame's larger side: fields of view of ~169° down to ~1°
+CENTRE_TOLERANCE = 0.3            # principal point within ± this fraction of the frame size from its centre
 
 
 def _unit_scale(depth_unit) -> float:
@@ -68,18 +70,16 @@ def depth_to_metres(depth, depth_unit="mm", *, check_plausible: bool = True) -> 
         raise DepthDtypeError(f"depth dtype {depth.dtype} is not numeric; pass uint16 millimetres or float metres")
     scale = _unit_scale(depth_unit)
     d = np.multiply(depth, np.float32(scale), dtype=np.float32)                 # [H, W] metres
-    if np.issubdtype(depth.dtype, np.unsignedinteger):                          # always finite and ≥ 0: 0 stays 0
-        n_valid = int(np.count_nonzero(depth))
-    else:
-        valid = np.isfinite(d) & (d > 0)                                        # [H, W]
-        d[~valid] = 0.0
-        n_valid = int(np.count_nonzero(valid))
+    if not np.issubdtype(depth.dtype, np.unsignedinteger):                      # unsigned: finite, ≥ 0, 0 stays 0
+        d[~(np.isfinite(d) & (d > 0))] = 0.0                                    # [H, W] invalid → 0
+    n_valid = int(np.count_nonzero(d))
     if n_valid == 0:
         raise EmptyDepthError(f"depth frame {depth.shape} has no valid pixel (all 0, negative, NaN or Inf); "
                               "check that the camera delivers depth and the scene is within its range")
     if check_plausible:
         sub = d[::4, ::4]                                                       # unit check on a 1/16 lattice
-        med = float(np.median(sub[sub > 0])) if (sub > 0).any() else float(np.median(d[valid]))
+        sub = sub[sub > 0]
+        med = float(np.median(sub if sub.size else d[d > 0]))                  # sparse frames: every valid pixel
         lo, hi = PLAUSIBLE_DEPTH_M
         if not lo <= med <= hi:
             raw = med / scale
@@ -131,6 +131,18 @@ def check_intrinsics(K, depth_shape, image_size=None) -> np.ndarray:
             # pixel centres at integer coordinates: x' = (x + 0.5) · s − 0.5
             K[0, 0] *= sx; K[0, 1] *= sx; K[0, 2] = (K[0, 2] + 0.5) * sx - 0.5
             K[1, 1] *= sy; K[1, 2] = (K[1, 2] + 0.5) * sy - 0.5
+    fx, fy = K[0, 0], K[1, 1]
+    if not (FOCAL_RANGE[0] * max(W, H) <= min(fx, fy) and max(fx, fy) <= FOCAL_RANGE[1] * max(W, H)) \
+            or not 0.2 <= fx / fy <= 5.0:
+        raise IntrinsicsError(
+            f"focal lengths fx={fx:.4g}, fy={fy:.4g} px are implausible for a {W}×{H} frame (a pinhole camera has "
+            f"{FOCAL_RANGE[0]:g}–{FOCAL_RANGE[1]:g} × the image size, fx ≈ fy): K must be in pixels of this frame, "
+            "not normalised or in millimetres")
+    if abs(K[0, 2] - (W - 1) / 2) > CENTRE_TOLERANCE * W or abs(K[1, 2] - (H - 1) / 2) > CENTRE_TOLERANCE * H:
+        raise IntrinsicsError(
+            f"principal point ({K[0, 2]:.1f}, {K[1, 2]:.1f}) is far from the centre of the {W}×{H} depth frame: K "
+            "belongs to another resolution. Pass image_size=(W, H) of the image K was calibrated for (if this frame "
+            "is a crop, shift cx, cy by the crop offset)")
     if not (0 < K[0, 2] < W - 1 and 0 < K[1, 2] < H - 1):
         raise IntrinsicsError(
             f"principal point ({K[0, 2]:.1f}, {K[1, 2]:.1f}) lies outside the {W}×{H} depth frame: K does not match the "
@@ -165,6 +177,11 @@ def check_box(box, shape) -> tuple:
 def check_mask(mask, shape) -> np.ndarray:
     """Validate a mask for a frame of ``shape`` (H, W). Returns [H, W] bool. Raises ``RegionError``."""
     m = np.asarray(mask)
+    if not (m.dtype == np.bool_ or np.issubdtype(m.dtype, np.integer) or np.issubdtype(m.dtype, np.floating)):
+        raise RegionError(f"mask dtype {m.dtype} is not boolean or numeric; pass an [H, W] bool array (or 0/non-zero "
+                          "numbers, e.g. a mask image read with cv2.IMREAD_GRAYSCALE)")
+    if np.issubdtype(m.dtype, np.floating) and not np.all(np.isfinite(m)):
+        raise RegionError("mask contains NaN/Inf; pass an [H, W] bool array (e.g. np.nan_to_num(mask) > 0.5)")
     if m.ndim == 3 and m.shape[2] in (1, 3, 4):
         m = m[:, :, 0]                                                          # [H, W, C] → [H, W] (first channel)
     if m.shape != tuple(shape[:2]):
@@ -179,9 +196,16 @@ def check_mask(mask, shape) -> np.ndarray:
 def check_points(points, name: str = "points") -> np.ndarray:
     """Validate a point array. Convention: [P, 3] metres. Returns float64 [P, 3]. Raises ``InvalidPointsError``."""
     try:
-        p = np.asarray(points, dtype=np.float64)
+        raw = np.asarray(points)
+    except (TypeError, ValueError):                                             # ragged nested lists
+        raise InvalidPointsError(f"{name} must be a numeric [P, 3] array of metres") from None
+    if raw.dtype == np.bool_ or not (np.issubdtype(raw.dtype, np.integer) or np.issubdtype(raw.dtype, np.floating)
+                                     or raw.dtype == object):
+        raise InvalidPointsError(f"{name} have dtype {raw.dtype}; pass real numbers (float metres)")
+    try:
+        p = np.asarray(raw, dtype=np.float64)
     except (TypeError, ValueError):
-        raise InvalidPointsError(f"{name} must be a numeric [P, 3] array") from None
+        raise InvalidPointsError(f"{name} must be a numeric [P, 3] array of metres") from None
     if p.ndim != 2 or p.shape[1] != 3:
         raise InvalidPointsError(f"{name} must be [P, 3] (x, y, z rows), got shape {p.shape}")
     bad = ~np.all(np.isfinite(p), axis=1)                                       # [P]

@@ -9,18 +9,18 @@ Convention:
 """
 from __future__ import annotations
 
-import pathlib
 import time
 
 import numpy as np
 
 from equipose import preprocess as _crop
-from equipose.core.errors import ConfigError, EquiposeError, InvalidPointsError, ModelFormatError
+from equipose.core.errors import ConfigError, EquiposeError, InvalidPointsError, ModelFormatError, RegionError
 from equipose.runtime.hypotheses import apply_calibration, canonicalise_rotation, parse_symmetry, select_hypothesis
 from equipose.core.metadata import decode_metadata
 from equipose.core.presets import ModelConfig, total_macs
 from equipose.runtime.refine import refine_hypotheses
 from equipose.runtime.result import FrameError, PoseResult
+from equipose.models import resolve_model_file
 from equipose.runtime.session import INPUT_NAME, OUTPUT_NAMES, check_io, open_session
 
 __all__ = ["PoseEstimator", "INPUT_NAME", "OUTPUT_NAMES", "LIGHT_MODEL_MACS"]
@@ -62,13 +62,7 @@ class PoseEstimator:
 
     def __init__(self, model_path, threads: int | None = None, *, crop_options: dict | None = None, top_k: int = 5,
                  refine: int | str = "auto", refine_iters: int | None = None, adaptive_threads: bool = True):
-        path = pathlib.Path(model_path)
-        if not path.is_file() and isinstance(model_path, str) and "/" not in model_path and "\\" not in model_path:
-            from equipose.models import resolve_model                                  # a shipped model's name
-            path = resolve_model(model_path)
-        if not path.is_file():
-            raise ModelFormatError(f"model file {str(path)!r} does not exist; pass the path of an equipose .onnx model "
-                                   "(the demo model is equipose.models.demo_model_path())")
+        path = resolve_model_file(model_path)
         if threads is not None and (not isinstance(threads, int) or threads < 0):
             raise ConfigError(f"threads must be None or a non-negative int, got {threads!r}")
         self.path = path
@@ -98,7 +92,9 @@ class PoseEstimator:
         self.refine, self.refine_iters = refine, refine_iters
         if refine and rcal:                                                     # calibrated for refined poses
             self.calibration_rotation, self.calibration_translation = rcal["rotation"], rcal["translation"]
-        self.crop_options = dict(crop_options or {})
+        if isinstance(top_k, bool) or not isinstance(top_k, int) or top_k < 1:
+            raise ConfigError(f"top_k must be an int ≥ 1 (hypotheses listed per result), got {top_k!r}")
+        self.crop_options = _crop.check_crop_options(crop_options or {})
         # the model reads N FPS-ordered points: a crop of 4·N (≥ 1024) keeps FPS coverage and bounds crop/FPS cost
         self.crop_options.setdefault("max_points", max(1024, 4 * self.num_points))
         self.top_k = int(top_k)
@@ -223,7 +219,7 @@ class PoseEstimator:
 
     def crop(self, depth, K, box=None, mask=None, depth_unit="mm", *, image_size=None, **crop_options):
         """``equipose.preprocess.crop_points`` with this estimator's crop defaults. Returns ``CropResult``."""
-        opts = {**self.crop_options, **crop_options}
+        opts = _crop.check_crop_options({**self.crop_options, **crop_options})
         return _crop.crop_points(depth, K, box=box, mask=mask, depth_unit=depth_unit, image_size=image_size, **opts)
 
     def predict_batch(self, depth, K, boxes=None, masks=None, depth_unit="mm", *, regions=None, image_size=None,
@@ -239,10 +235,14 @@ class PoseEstimator:
             regions = _crop.check_regions(boxes, masks)                         # [{box, mask}] per object
         if not regions:
             return []
+        if any(not isinstance(r, dict) or (r.get("box") is None and r.get("mask") is None) for r in regions):
+            raise RegionError("every object needs a box or a mask: a whole-frame crop would take the table and the "
+                              "background for the object. Pass box=(x, y, w, h) or mask=..., or call predict_auto "
+                              "to find the objects on a table (a frame holding only the object: mask=depth > 0)")
         t0 = time.perf_counter()
         depth_m = _crop.depth_to_metres(depth, depth_unit)                      # [H, W] m — validates once per frame
         Kf = _crop.check_intrinsics(K, depth_m.shape, image_size)               # [3, 3]
-        opts = {**self.crop_options, **crop_options}
+        opts = _crop.check_crop_options({**self.crop_options, **crop_options})
         wants_plane = opts.get("remove_support_plane")
         if wants_plane is None:
             wants_plane = any(r.get("box") is not None and r.get("mask") is None for r in regions)

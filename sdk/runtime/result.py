@@ -114,6 +114,9 @@ class PoseResult:
             d["canonical_shape_m"] = np.round(self.canonical_shape, 5).tolist()
         return d
 
+    def __repr__(self) -> str:                                                  # arrays stay out of the repr
+        return f"PoseResult({self.summary()})"
+
     def summary(self) -> str:
         """One line: R as a rotation vector (deg), t (m), confidence, flags."""
         from scipy.spatial.transform import Rotation

@@ -60,7 +60,8 @@ def _regions_for(frame, est, boxes, masks, regions, auto, auto_options):
         n = len(boxes) if boxes is not None else len(masks)
         return [{"box": None if boxes is None else boxes[i], "mask": None if masks is None else masks[i]}
                 for i in range(n)]
-    return [{"box": None, "mask": None}]                                        # the whole frame is the object
+    raise ConfigError("track needs the objects' regions: boxes, masks, regions (a list or a detector callable) or "
+                      "auto=True (tabletop segmentation); a whole-frame crop would take the background for the object")
 
 
 def track(est, source, *, boxes=None, masks=None, regions=None, auto: bool = False, smoothing: float = 0.5,
@@ -70,12 +71,14 @@ def track(est, source, *, boxes=None, masks=None, regions=None, auto: bool = Fal
 
     Regions per frame: ``regions`` (a list, or a callable ``frame -> list`` of boxes or ``{"box", "mask"}`` dicts —
     e.g. a detector), fixed ``boxes`` / ``masks`` (object i keeps id i), ``auto=True`` (tabletop segmentation; ids by
-    nearest previous position within ``max_jump_m``), or none (the whole frame is one object).
+    nearest previous position within ``max_jump_m``), one of them is required.
     ``reuse_margin``: the hypothesis nearest the object's previous rotation is kept when it scores within this relative
     margin of the best one (prevents flip-flopping between near-equal hypotheses). ``smoothing`` α in [0, 1).
     """
     if not 0.0 <= smoothing < 1.0:
         raise ConfigError(f"smoothing must be in [0, 1), got {smoothing}")
+    if regions is None and not auto and boxes is None and masks is None:
+        _regions_for(None, est, boxes, masks, regions, auto, auto_options)     # raises the ConfigError
     state: dict = {}                                                            # id → (R, t) smoothed
     next_id = 0
     it = iter(source)

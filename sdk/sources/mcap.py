@@ -23,12 +23,17 @@ from equipose.sources.base import Frame, FrameSource, register_source
 __all__ = ["McapReplay", "McapWriter", "rgb_path_for", "mcap_message_count"]
 
 
+MCAP_MAGIC = b"\x89MCAP0\r\n"
+MIN_MESSAGE_BYTES = 31          # a Message record without payload: opcode, length, channel, sequence, 2 timestamps
+
+
 def mcap_message_count(path) -> int | None:
     """Message count from an .mcap file's summary Statistics record (None if the file has no summary).
 
     MCAP layout (spec): ... Footer record [opcode 0x02, u64 length, u64 summary_start, u64 summary_offset_start,
     u32 crc] + 8-byte magic. The summary section holds a Statistics record (opcode 0x0B) whose first field is the u64
-    message count.
+    message count. Raises ``SourceError`` when the footer points outside the file or the count is impossible for the
+    file's size (a damaged or forged recording).
     """
     import struct
     size = os.path.getsize(path)
@@ -37,21 +42,45 @@ def mcap_message_count(path) -> int | None:
     with open(path, "rb") as f:
         f.seek(size - 37)
         tail = f.read(37)
-        if tail[-8:] != b"\x89MCAP0\r\n" or tail[0] != 0x02:
+        if tail[-8:] != MCAP_MAGIC or tail[0] != 0x02:
             return None
         summary_start, summary_offset_start = struct.unpack_from("<QQ", tail, 9)
         if summary_start == 0:
             return None
         end = summary_offset_start if summary_offset_start else size - 37
+        if not 8 <= summary_start <= end <= size - 37:
+            raise SourceError(f"{path}: the MCAP footer points outside the file (summary at {summary_start}, file "
+                              f"{size} bytes); the recording is damaged")
         f.seek(summary_start)
-        data = f.read(max(0, end - summary_start))
+        data = f.read(end - summary_start)
     pos = 0
     while pos + 9 <= len(data):
         op, length = data[pos], struct.unpack_from("<Q", data, pos + 1)[0]
-        if op == 0x0B and length >= 8:
-            return int(struct.unpack_from("<Q", data, pos + 9)[0])
+        if op == 0x0B and length >= 8 and pos + 17 <= len(data):
+            count = int(struct.unpack_from("<Q", data, pos + 9)[0])
+            per_channel = _channel_counts(data[pos + 9: pos + 9 + length])
+            if count > size // MIN_MESSAGE_BYTES or (per_channel is not None and sum(per_channel) != count):
+                raise SourceError(f"{path}: its statistics claim {count} messages, inconsistent with its per-channel "
+                                  f"counts {per_channel} or its size ({size} bytes); the recording is damaged")
+            return count
         pos += 9 + length
     return None
+
+
+def _channel_counts(stats: bytes) -> list | None:
+    """Per-channel message counts of a Statistics record body (None if it is too short to hold them).
+
+    Body: u64 message_count, u16 schema_count, u32 channel_count, u32 attachment_count, u32 metadata_count,
+    u32 chunk_count, u64 message_start_time, u64 message_end_time, then map<u16 channel, u64 count> (u32 byte length).
+    """
+    import struct
+    head = 8 + 2 + 4 * 4 + 8 + 8
+    if len(stats) < head + 4:
+        return None
+    n = struct.unpack_from("<I", stats, head)[0]
+    if n % 10 or head + 4 + n > len(stats):
+        return None
+    return [struct.unpack_from("<Q", stats, head + 4 + k + 2)[0] for k in range(0, n, 10)]
 
 
 def rgb_path_for(path) -> pathlib.Path:
@@ -76,8 +105,12 @@ class McapReplay(FrameSource):
         if self.path.stat().st_size < 16:
             raise SourceError(f"{self.path} is too small to be an .mcap recording")
         with open(self.path, "rb") as f:
-            if f.read(8) != b"\x89MCAP0\r\n":
+            if f.read(8) != MCAP_MAGIC:
                 raise SourceError(f"{self.path} is not an .mcap file (bad magic); record with 'equipose record'")
+            f.seek(-8, os.SEEK_END)
+            if f.read(8) != MCAP_MAGIC:
+                raise SourceError(f"{self.path} has no MCAP footer: the recording was cut off before it was closed "
+                                  "(or is damaged) and cannot be replayed")
         auto = rgb_path_for(self.path)
         self.rgb_path = pathlib.Path(rgb) if rgb is not None else (auto if auto.is_file() else None)
         self.timeout = datetime.timedelta(seconds=float(timeout_s))
@@ -91,9 +124,10 @@ class McapReplay(FrameSource):
         for path in [self.path] + ([self.rgb_path] if self.rgb_path else []):
             node = p.create(dai.node.ReplayMessage)
             node.setReplayFile(str(path))
-            # A finished node stops the whole pipeline and drops the other stream's queued messages, so with a known
-            # message count the nodes loop and we stop after ``count`` frames; without one, play once.
-            node.setLoop(self.count is not None)
+            # With two streams a finished node stops the whole pipeline and drops the other stream's queued messages,
+            # so with a known message count both nodes loop and we stop after ``count`` frames; a single stream (or
+            # no count) plays once.
+            node.setLoop(self.count is not None and self.rgb_path is not None)
             queues.append(node.out.createOutputQueue(maxSize=8, blocking=True))
         p.start()
         self._queues = queues
@@ -116,13 +150,16 @@ class McapReplay(FrameSource):
             while self.count is None or i < self.count:
                 msg = self._get(queues[0], dai)
                 if msg is None:
-                    return
+                    break
                 rgb = None
                 if len(queues) > 1:
                     cm = self._get(queues[1], dai)
                     rgb = None if cm is None else np.asarray(cm.getCvFrame())
                 yield self._to_frame(msg, rgb, i, dai)
                 i += 1
+            if i == 0:
+                raise SourceError(f"{self.path}: no message could be replayed; the file is not a depthai recording "
+                                  "or is damaged")
         finally:
             self.close()
 

@@ -10,6 +10,7 @@ Convention: an organized cloud (height > 1) with fields x, y, z in metres, camer
 from __future__ import annotations
 
 import pathlib
+import warnings
 
 import numpy as np
 
@@ -51,7 +52,9 @@ def read_organized_cloud(path) -> dict:
         raise SourceError("reading .pcd needs pypcd4: pip install 'equipose[camera]' (or pip install pypcd4)") from None
     path = pathlib.Path(path)
     try:
-        pc = PointCloud.from_path(path)
+        with warnings.catch_warnings():                                         # numpy's "no data" warning: checked below
+            warnings.simplefilter("ignore")
+            pc = PointCloud.from_path(path)
     except FileNotFoundError:
         raise SourceError(f"{path} does not exist") from None
     except Exception as e:  # pypcd4 raises assorted errors for malformed headers/data
@@ -63,6 +66,18 @@ def read_organized_cloud(path) -> dict:
     if H <= 1:
         raise SourceError(f"{path} is an unorganized cloud ({W}×{H}); depth frames need an organized (image-shaped) "
                           "cloud — use PoseEstimator.predict_points on the points instead")
+    n = len(pc.pc_data)                                                         # points actually read
+    if n != W * H:                                                              # truncated or inconsistent header
+        raise SourceError(f"{path} holds {n} points but its header declares WIDTH {W} × HEIGHT {H} = {W * H}; the "
+                          "file is truncated or damaged — re-export it")
+    try:
+        return _organized_arrays(pc, fields, H, W)
+    except (ValueError, TypeError, OverflowError) as e:                         # malformed field data
+        raise SourceError(f"{path}: field data cannot be read as an organized cloud ({type(e).__name__}: {e})") from None
+
+
+def _organized_arrays(pc, fields: tuple, H: int, W: int) -> dict:
+    """pypcd4 cloud of H·W points → the arrays of ``read_organized_cloud``."""
     xyz = pc.numpy(("x", "y", "z")).astype(np.float32).reshape(H, W, 3)        # [H, W, 3] m
     K = intrinsics_from_organized(xyz)
     z = xyz[:, :, 2]

@@ -190,10 +190,10 @@ def test_cli_reports_bad_input_without_a_traceback(tmp_path, capsys):
     from equipose.cli import main
     junk = tmp_path / "junk.onnx"
     junk.write_bytes(b"\x00\x01garbage")
-    assert main(["predict", "--model", str(junk), "--source", str(tmp_path)]) == 2
+    assert main(["predict", "--model", str(junk), "--source", str(tmp_path), "--auto"]) == 2
     err = capsys.readouterr().err
     assert "error:" in err and "Traceback" not in err
-    assert main(["predict", "--source", str(tmp_path / "nope")]) == 2
+    assert main(["predict", "--source", str(tmp_path / "nope"), "--auto"]) == 2
     assert "does not exist" in capsys.readouterr().err
 
 

@@ -27,7 +27,7 @@ def _steps(preset):
     if not ck.is_file():
         return None, None
     import torch
-    c = torch.load(ck, map_location="cpu", weights_only=False)
+    c = torch.load(ck, map_location="cpu", weights_only=True)
     return c.get("step"), (c.get("training") or {}).get("seconds_per_step_median")
 
 
