@@ -198,7 +198,7 @@ class PoseEstimator:
         for b, prep in enumerate(preps):
             pref = None if prefer is None else prefer[b]
             res, sel_ms = self._finish(outputs, b, prep, prefer=pref, prefer_margin=prefer_margin)
-            res.num_points = int(counts[b])
+            res.num_points, res.points_centre = int(counts[b]), prep.centre_m.copy()
             res.crop = {} if crops[b] is None else dict(crops[b].diagnostics)
             res.timings = {"crop": crop_ms[b], "fps": fps_ms[b], "inference": inf_ms, "selection": sel_ms,
                            "total": crop_ms[b] + fps_ms[b] + inf_ms + sel_ms, "batch": len(preps)}

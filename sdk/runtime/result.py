@@ -32,7 +32,9 @@ class PoseResult:
         symmetry: metadata symmetry string; symmetry_axis: [3] camera-frame unit axis (None if not symmetric);
             rotation_canonical: [3, 3] canonical representative of the symmetry class (== rotation if none).
         category, num_points (points the crop produced), timings (ms: crop, fps, inference, selection, total),
-        crop: crop diagnostics, object_id (tracking), random_init (the model has random weights).
+        crop: crop diagnostics, object_id (tracking), random_init (the model has random weights),
+        points_centre: [3] metres, camera frame, centroid of the object points the model saw (tracking associates
+            objects by it: it does not depend on the chosen hypothesis).
     """
     rotation: np.ndarray
     translation: np.ndarray
@@ -54,6 +56,7 @@ class PoseResult:
     random_init: bool = False
     raw_rotation: np.ndarray | None = None      # before temporal smoothing (tracking only)
     raw_translation: np.ndarray | None = None
+    points_centre: np.ndarray | None = None
 
     def set_pose(self, rotation, translation):
         """Replace the pose (e.g. after smoothing) and update everything derived from it (shape, symmetry axis)."""
@@ -108,6 +111,7 @@ class PoseResult:
             "num_points": int(self.num_points),
             "timings_ms": {k: round(float(v), 3) for k, v in self.timings.items()},
             "crop": self.crop,
+            "points_centre_m": None if self.points_centre is None else np.round(self.points_centre, 6).tolist(),
             "random_init": bool(self.random_init),
         }
         if include_shape:

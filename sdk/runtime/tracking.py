@@ -80,6 +80,7 @@ def track(est, source, *, boxes=None, masks=None, regions=None, auto: bool = Fal
     if regions is None and not auto and boxes is None and masks is None:
         _regions_for(None, est, boxes, masks, regions, auto, auto_options)     # raises the ConfigError
     state: dict = {}                                                            # id → (R, t) smoothed
+    centres: dict = {}                                                          # id → [3] m last observed centre
     next_id = 0
     it = iter(source)
     index = -1
@@ -121,8 +122,8 @@ def track(est, source, *, boxes=None, masks=None, regions=None, auto: bool = Fal
             for out in outs:
                 best, best_d = None, max_jump_m
                 if not isinstance(out, FrameError):
-                    for oid, (_, t_prev) in state.items():
-                        dist = float(np.linalg.norm(out.translation - t_prev))
+                    for oid, c_prev in centres.items():
+                        dist = float(np.linalg.norm(out.points_centre - c_prev))
                         if oid not in taken and dist < best_d:
                             best, best_d = oid, dist
                 if best is None:                                                # a new object
@@ -143,5 +144,7 @@ def track(est, source, *, boxes=None, masks=None, regions=None, auto: bool = Fal
                     out.set_pose(_blend_rotation(R_prev, out.rotation, smoothing),
                                  smoothing * t_prev + (1.0 - smoothing) * out.translation)
             state[oid] = (out.rotation.copy(), out.translation.copy())
+            if out.points_centre is not None:
+                centres[oid] = out.points_centre.copy()
             rec.poses.append(out)
         yield rec

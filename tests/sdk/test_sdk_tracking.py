@@ -44,7 +44,16 @@ def test_smoothing_blends_towards_the_new_pose(estimator):
 
 def test_auto_tracking_keeps_object_ids(estimator):
     depth, truth = tabletop_scene()
-    stream = [Frame(depth=depth, K=K_VGA)] * 3
-    recs = list(estimator.track(stream, auto=True))
+    rng = np.random.default_rng(0)
+    stream = []
+    for i in range(3):                                                          # the scene pans 4 px per frame
+        d = np.roll(depth, 4 * i, axis=1).astype(np.int32)                      # + 2 mm sensor noise
+        d[d > 0] += rng.integers(-2, 3, size=int((d > 0).sum()))
+        stream.append(Frame(depth=d.astype(np.uint16), K=K_VGA))
+    assert not np.array_equal(stream[0].depth, stream[1].depth)
+    recs = list(estimator.track(stream, auto=True, smoothing=0.0))
     ids = [sorted(p.object_id for p in r.poses) for r in recs]
     assert ids == [[0, 1]] * 3
+    x = [[p.points_centre[0] for p in sorted(r.poses, key=lambda p: p.object_id)] for r in recs]
+    assert np.all(np.diff(np.array(x), axis=0) > 0.001)                         # each object follows the pan
+    # the random-weight model's translations jump by decimetres between these frames: association must not use them
