@@ -230,3 +230,15 @@ def test_golden_mug_sample_stands_upright(name):
     crop = est.crop(frame.depth, frame.K, mask=auto_masks(frame.depth, frame.K, image_size=frame.image_size)[0],
                     image_size=frame.image_size)
     assert np.linalg.norm(r.translation - crop.points.mean(0)) < 0.05
+
+
+# ---------------------------------------------------------------------------------------------------------------------
+# the ONNX contract's equivariance tolerances (README "Export"): fp32 1e-5, int8 5e-2
+
+@pytest.mark.parametrize("name, atol", [("car-partial", 1e-5), ("car-partial.int8", 5e-2),
+                                        ("cup-tabletop.int8", 5e-2), ("airplane-complete.int8", 5e-2)])
+def test_shipped_models_meet_the_equivariance_tolerance(name, atol):
+    from equipose.testing import assert_equivariant
+    est = PoseEstimator(name, threads=1)
+    pts = np.random.default_rng(0).normal(size=(1, est.num_points, 3)).astype(np.float32) * 0.4
+    assert_equivariant(est.run_model, pts, rotations=range(0, 60, 7), atol=atol)

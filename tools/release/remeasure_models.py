@@ -6,7 +6,7 @@ when the file has a refined calibration, then the file's own setting with ICP-60
 before, ``--store-metrics``, JSON, plot and text into ``docs/results/models/F.{json,png,txt}``. Test set (category /
 mode) and ICP sample count are read from the file's stored metrics. Prints old → new rotation mean / median / 5°.
 
-Usage: python tools/release/remeasure_models.py [NAME ...]
+Usage: python tools/release/remeasure_models.py [NAME | FILE.onnx ...]   (NAME: fp32 and int8; FILE: that file only)
 """
 import pathlib
 import subprocess
@@ -27,7 +27,7 @@ def main(names) -> int:
     files = sorted(pathlib.Path("sdk/models").glob("*.onnx"))
     for f in files:
         stem = f.name[:-len(".onnx")]
-        if names and stem.split(".")[0] not in names:
+        if names and stem.split(".")[0] not in names and f.name not in names:          # NAME, or FILE.onnx exactly
             continue
         m = meta(f)
         old = m["metrics"]
