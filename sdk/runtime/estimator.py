@@ -18,6 +18,7 @@ from equipose.core.errors import ConfigError, EquiposeError, InvalidPointsError,
 from equipose.runtime.hypotheses import apply_calibration, canonicalise_rotation, parse_symmetry, select_hypothesis
 from equipose.core.metadata import decode_metadata
 from equipose.core.presets import ModelConfig, total_macs
+from equipose.runtime.instance import build_instance_model, finish_instance
 from equipose.runtime.refine import refine_hypotheses
 from equipose.runtime.result import FrameError, PoseResult
 from equipose.models import resolve_model_file
@@ -28,7 +29,7 @@ __all__ = ["PoseEstimator", "INPUT_NAME", "OUTPUT_NAMES", "LIGHT_MODEL_MACS"]
 LIGHT_MODEL_MACS = 1e9      # below this per object, a single object runs on one onnxruntime thread (adaptive_threads)
 
 
-def _ms(t0: float) -> float:
+def _ms(t0: float) -> float:  # milliseconds since t0
     return (time.perf_counter() - t0) * 1e3
 
 
@@ -36,13 +37,12 @@ class PoseEstimator:
     """Category-level 6D pose from depth with an equipose ONNX model (CPU, onnxruntime).
 
     Args:
-        model_path: an ``.onnx`` file written by ``equipose export``.
+        model_path: an ``.onnx`` file written by ``equipose export``, or a shipped model's name (``equipose models``).
         threads: onnxruntime intra-op thread budget (None = onnxruntime's default, the physical core count).
         adaptive_threads: run single objects of a light model (< ``LIGHT_MODEL_MACS`` per object: every edge preset) on
             one thread and batches on the whole budget. Such a graph is hundreds of small kernels, where handing each
-            one to a second thread usually costs more than it saves (edge preset, 2 cores: one object 2.1 ms on one
-            thread, 2.6–3.1 ms on two in most processes; two objects 4.2 vs 3.0 ms; docs/benchmarks.md).
-            Attribute ``single_thread``: whether it applies (the 1-thread session is then opened with the main one).
+            one to a second thread usually costs more than it saves (docs/benchmarks.md). Attribute ``single_thread``:
+            whether it applies (the 1-thread session is then opened with the main one).
         crop_options: defaults for ``equipose.preprocess.crop_points`` (e.g. ``{"max_depth": 2.0}``).
         top_k: hypotheses listed in each result.
         refine: ICP re-scoring (``equipose.runtime.refine``): the ``refine`` best hypotheses are refined by ICP against the
@@ -51,6 +51,9 @@ class PoseEstimator:
             ``equipose calibrate --model M --refine K``), else 0. With refinement the refined calibration is used
             when the file has one.
         refine_iters: ICP iterations per refined hypothesis (default: the file's, else 10).
+        model_points: instance-level mode (``equipose.runtime.instance``): [M, 3] metres of the object's own model
+            (CAD frame); results are that model's pose (camera ← CAD), found by ICP of the ``instance_k`` best
+            hypotheses (``instance_iters`` iterations) against the model points instead of the predicted shape.
 
     Attribute ``runner``: None (onnxruntime, ``run_model``) or a callable with ``run_model``'s contract
     (model points [B, N, 3] float32 → the 4 output arrays) used in its place by every ``predict*`` call; ``equipose
@@ -61,7 +64,8 @@ class PoseEstimator:
     """
 
     def __init__(self, model_path, threads: int | None = None, *, crop_options: dict | None = None, top_k: int = 5,
-                 refine: int | str = "auto", refine_iters: int | None = None, adaptive_threads: bool = True):
+                 refine: int | str = "auto", refine_iters: int | None = None, adaptive_threads: bool = True,
+                 model_points=None, instance_k: int = 10, instance_iters: int = 20):
         path = resolve_model_file(model_path)
         if threads is not None and (not isinstance(threads, int) or threads < 0):
             raise ConfigError(f"threads must be None or a non-negative int, got {threads!r}")
@@ -103,6 +107,8 @@ class PoseEstimator:
         self.single_thread = bool(adaptive_threads) and threads != 1 and macs < LIGHT_MODEL_MACS
         # opened now, so that the first single-object call does not pay for it (≈ 20 ms)
         self._single_session = open_session(path, 1) if self.single_thread else None
+        self.instance = None if model_points is None else \
+            build_instance_model(self, model_points, k=instance_k, iters=instance_iters)
 
     def uses_single_thread(self, batch: int) -> bool:
         """Whether a run of ``batch`` objects goes to the 1-thread session (``adaptive_threads``)."""
@@ -142,6 +148,8 @@ class PoseEstimator:
     def _finish(self, outputs: dict, b: int, prep: "_crop.PreparedPoints", *, prefer: int | None = None,
                 prefer_margin: float = 0.0) -> tuple:
         """Outputs of batch item ``b`` → (PoseResult without timings, selection ms)."""
+        if self.instance is not None:
+            return finish_instance(self, self.instance, outputs, b, prep, prefer=prefer, prefer_margin=prefer_margin)
         t0 = time.perf_counter()
         R_all = outputs["hypothesis_rotations"][b]                              # [60, 3, 3]
         t_all = outputs["hypothesis_translations"][b]                           # [60, 3] model units
@@ -290,4 +298,3 @@ class PoseEstimator:
         """Stream poses over a frame source; see ``equipose.runtime.tracking.track`` for the options. Yields ``TrackRecord``."""
         from equipose.runtime.tracking import track
         return track(self, source, **kwargs)
-
