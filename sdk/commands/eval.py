@@ -23,6 +23,9 @@ def add_arguments(p) -> None:
     p.add_argument("--icp-iters", dest="icp_iters", type=int, default=20)
     p.add_argument("--icp-samples", dest="icp_samples", type=int,
                    help="run ICP on an evenly spaced subset of this many test samples (its row then carries 'n')")
+    p.add_argument("--exclude", default="", help="comma-separated test instances to leave out (e.g. 0629,0637)")
+    p.add_argument("--exclude-suspects", dest="exclude_suspects", action="store_true",
+                   help="leave out the category's suspect test instances (shared/data/SOURCES.md)")
     p.add_argument("--data-root", dest="data_root")
     p.add_argument("--cache-dir", dest="cache_dir")
     p.add_argument("--threads", type=int, default=1, help="torch threads")
@@ -38,10 +41,16 @@ def run(args) -> int:
     from equipose.train.evaluate import evaluate, format_table, metrics_for_metadata, plot_percentiles, write_json
     import torch
     torch.set_num_threads(max(1, args.threads))
+    from equipose.train.evaluate import SUSPECT_TEST_INSTANCES
+    exclude = [e for e in args.exclude.split(",") if e]
+    if args.exclude_suspects:
+        exclude += list(SUSPECT_TEST_INSTANCES.get(args.category, ()))
+    if exclude and args.store_metrics:
+        raise ConfigError("--store-metrics stores the full test set's metrics; drop --exclude / --exclude-suspects")
     res = evaluate(category=args.category, mode=args.mode, checkpoint=args.checkpoint, model_path=args.model,
                    data_root=args.data_root, limit=args.limit, icp_templates=args.icp_templates,
                    icp_points=args.icp_points, icp_iters=args.icp_iters, icp_samples=args.icp_samples, cache_dir=args.cache_dir,
-                   refine=args.refine)
+                   refine=args.refine, exclude=exclude)
     if args.store_metrics and not args.model:
         raise ConfigError("--store-metrics needs --model (the metrics describe that file)")
     print(format_table(res))
