@@ -13,6 +13,7 @@ Convention:
 """
 from __future__ import annotations
 
+import hashlib
 import json
 import pathlib
 import time
@@ -96,6 +97,26 @@ def run_icp(samples: list, templates: list, bidirectional: bool, obs_points: int
     return out
 
 
+def _cached_icp(samples: list, templates: list, cache_dir, *, log=print, **opts) -> list:
+    """``run_icp`` with its poses kept on disk (the baseline does not depend on the model under test), keyed by the
+    exact observations, templates and options (``equipose.train.cache_io.keyed_cache_path``)."""
+    from equipose.train.cache_io import keyed_cache_path
+    digest = hashlib.sha1()
+    for a in [s["points_m"] for s in samples] + list(templates):
+        digest.update(np.ascontiguousarray(a, np.float64).tobytes())
+    settings = {k: v for k, v in opts.items() if k != "progress"}
+    _, path = keyed_cache_path(cache_dir, "icp60", {**settings, "data": digest.hexdigest()})
+    if path.is_file():
+        z = np.load(path)
+        log(f"ICP-60 poses from {path.name}")
+        return [(z["R"][k], z["t"][k]) for k in range(len(z["R"]))]
+    per = run_icp(samples, templates, **opts)
+    tmp = path.with_suffix(".tmp.npz")
+    np.savez(tmp, R=np.stack([R for R, _ in per]), t=np.stack([t for _, t in per]))
+    tmp.replace(path)
+    return per
+
+
 def _icp_template_clouds(root, category: str) -> list:
     """ICP-60 template candidates in the test samples' units: ModelNet train clouds (file units), or for tabletop
     categories the ModelNet source category resized to the middle of its metric radius range (metres)."""
@@ -169,8 +190,8 @@ def evaluate(*, category: str, mode: str, checkpoint=None, model_path=None, data
             icp_idx = np.linspace(0, len(samples) - 1, icp_samples).round().astype(int)
         icp_set = [samples[i] for i in icp_idx]
         t0 = time.perf_counter()
-        per = run_icp(icp_set, templates, bidirectional=(mode == "complete"), obs_points=icp_points, iters=icp_iters,
-                      progress=progress)
+        per = _cached_icp(icp_set, templates, cache_dir, bidirectional=(mode == "complete"), obs_points=icp_points,
+                          iters=icp_iters, progress=progress, log=log)
         icp_s = time.perf_counter() - t0
         r_all, t_all = [], []
         for Ri, ti in per:

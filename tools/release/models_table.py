@@ -1,11 +1,12 @@
 """Markdown tables of the shipped models (issue 7): our test metrics stored in each file's metadata (written by
 ``equipose eval --model M --store-metrics``), ICP-60 from the same command, and the paper's Table 1 / Table 2 rows.
 
-Usage: python tools/release/models_table.py [--precision fp32|int8|all]
+Usage: python tools/release/models_table.py [--precision fp32|int8|all] [--scoreboard]
 """
 from __future__ import annotations
 
 import argparse
+import pathlib
 
 from equipose.models import model_cards
 
@@ -31,10 +32,54 @@ def _triple(m: dict) -> str:
     return f"{m['rot_mean_deg']:.2f} / {m['rot_median_deg']:.2f} / {m['acc_5deg']:.2f}"
 
 
+def _plain(stem: str) -> str:
+    """The plain network's row (``--refine 0``) from docs/results/models/STEM.norefine.txt: mean / median / 5° (flip)."""
+    path = pathlib.Path("docs/results/models") / f"{stem}.norefine.txt"
+    if not path.is_file():
+        return "–"
+    for line in path.read_text().splitlines():
+        parts = line.split()
+        if parts and parts[0] == "equipose":
+            mean, med, acc, flip = float(parts[1]), float(parts[2]), float(parts[5]), float(parts[7])
+            return f"{mean:.2f} / {med:.2f} / {acc:.2f} ({flip:.2f})"
+    return "–"
+
+
+def _beats(m: dict, paper: tuple | None) -> str:
+    if not m or not paper:
+        return "–"
+    ok = m["rot_median_deg"] <= paper[1] and m["acc_5deg"] >= paper[2]
+    return "**yes**" if ok else "no"
+
+
+def scoreboard() -> None:
+    """One row per (category, test set): paper, ICP-60, plain network and default pipeline, fp32 and int8."""
+    cards = {c["name"]: c for c in model_cards() if not c["random_init"]}
+    print("| model | paper ours | paper ICP | ICP-60 (our run) | fp32 plain (flip) | fp32 default (flip) | "
+          "int8 plain (flip) | int8 default (flip) | beats paper fp32 / int8 | steps |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
+    for name, c in sorted(cards.items()):
+        if c["precision"] != "fp32":
+            continue
+        m, q = c["metrics"], (cards.get(name + ".int8") or {}).get("metrics", {})
+        test_mode = m.get("test_set", "–").split(" ")[0].split("/")[-1]
+        paper = PAPER.get((c["category"], test_mode))
+        fmt = lambda d: f"{_triple(d)} ({d['flip_rate']:.2f})" if d and "flip_rate" in d else _triple(d)  # noqa: E731
+        print(f"| `{name}` | {' / '.join(f'{v:g}' for v in paper['ours']) if paper else '–'} | "
+              f"{' / '.join(f'{v:g}' for v in paper['icp']) if paper else '–'} | {fmt(m.get('icp60', {}))} | "
+              f"{_plain(name)} | {fmt(m)} | {_plain(name + '.int8')} | {fmt(q)} | "
+              f"{_beats(m, paper['ours'] if paper else None)} / {_beats(q, paper['ours'] if paper else None)} | "
+              f"{c['training'].get('step', '–')} |")
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--precision", default="all", choices=["fp32", "int8", "all"])
+    ap.add_argument("--scoreboard", action="store_true", help="paper / ICP-60 / plain / default, fp32 and int8")
     args = ap.parse_args(argv)
+    if args.scoreboard:
+        scoreboard()
+        return 0
     print("| model | category | network | test set | precision | MB | train steps | ours: mean / median / 5° | flip | "
           "ICP-60 (same run) | paper ours | paper ICP |")
     print("|---|---|---|---|---|---|---|---|---|---|---|---|")
