@@ -14,6 +14,7 @@ Commands (``python -m equipose.train.long_runs ...``):
     run --lane A,B,C --minutes M [--slice S]
                              resume each named model for S minutes in turn until M minutes are spent (one process
                              per core: torch uses 1 thread)
+    adopt NAME RUN_DIR       start tracking a model trained with ``equipose train --out RUN_DIR``
     show                     print every manifest (steps, data version, last validation)
 """
 from __future__ import annotations
@@ -29,7 +30,7 @@ import time
 
 import numpy as np
 
-__all__ = ["STATE_DIR", "seed_model", "run_slice", "run_lane", "data_version", "read_manifest"]
+__all__ = ["STATE_DIR", "seed_model", "adopt_run", "run_slice", "run_lane", "data_version", "read_manifest"]
 
 REPO = pathlib.Path(__file__).resolve().parents[1]
 STATE_DIR = REPO / "train" / "state"
@@ -113,6 +114,39 @@ def seed_model(name: str, *, state_dir=STATE_DIR, models_dir=MODELS_DIR, data_ro
     return folder / "latest.pt"
 
 
+def adopt_run(name: str, run_dir, *, state_dir=STATE_DIR, overwrite: bool = False) -> pathlib.Path:
+    """Start tracking a model trained in ``run_dir`` (``latest.pt`` + ``config.json`` of ``equipose train``)."""
+    import shutil
+    import torch
+    run_dir, folder = pathlib.Path(run_dir), pathlib.Path(state_dir) / name
+    if (folder / "manifest.json").exists() and not overwrite:
+        raise FileExistsError(f"{folder} is tracked already; pass --overwrite to replace it")
+    folder.mkdir(parents=True, exist_ok=True)
+    cfg = json.loads((run_dir / "config.json").read_text())
+    ck = torch.load(run_dir / "latest.pt", map_location="cpu", weights_only=True)
+    partial = cfg["mode"] == "partial"
+    root = cfg.get("data_root") or _default_root()
+    cfg.update(out=f"train/state/{name}", data_root="", cache_dir="", steps=int(ck["step"]), minutes=0.0,
+               val_every=1000,
+               teacher=f"train/state/{cfg['category']}-complete/latest.pt" if partial else "")
+    shutil.copyfile(run_dir / "latest.pt", folder / "latest.pt")
+    _write_json(folder / "config.json", cfg)
+    _write_json(folder / "manifest.json", {
+        "name": name, "role": "student" if partial else "teacher", "category": cfg["category"], "mode": cfg["mode"],
+        "preset": cfg["preset"], "steps": int(ck["step"]), "step_counter": int(ck["step"]),
+        "data_version": data_version(root, cfg["category"]),
+        "teacher": f"{cfg['category']}-complete" if partial else None,
+        "command": f"equipose train --out train/state/{name} --resume --steps N",
+        "history": [{"date": datetime.date.today().isoformat(), "event": f"adopted from {run_dir.name}",
+                     "steps_after": int(ck["step"])}]})
+    return folder / "latest.pt"
+
+
+def _default_root():
+    from .data import default_data_root
+    return default_data_root()
+
+
 def run_slice(name: str, minutes: float, *, state_dir=STATE_DIR, data_root=None, cache_dir=None, log=print) -> dict:
     """Resume ``name`` for ``minutes`` of training steps; update its manifest; return the last validation record."""
     from .data import default_data_root
@@ -171,14 +205,18 @@ def main(argv=None) -> int:
     r = sub.add_parser("run"); r.add_argument("--lane", required=True); r.add_argument("--minutes", type=float, required=True)
     r.add_argument("--slice", type=float, default=20.0)
     r.add_argument("--cache-dir", help="render cache folder (default: data_cache/ beside the package)")
+    a = sub.add_parser("adopt"); a.add_argument("name"); a.add_argument("run_dir")
+    a.add_argument("--overwrite", action="store_true")
     sub.add_parser("show")
-    for p in (s, r, ap):
+    for p in (s, r, a, ap):
         p.add_argument("--state-dir", default=str(STATE_DIR)) if p is not ap else None
     args = ap.parse_args(argv)
     state = pathlib.Path(getattr(args, "state_dir", STATE_DIR))
     if args.cmd == "seed":
         for n in args.names:
             print(n, "->", seed_model(n, state_dir=state, overwrite=args.overwrite))
+    elif args.cmd == "adopt":
+        print(args.name, "->", adopt_run(args.name, args.run_dir, state_dir=state, overwrite=args.overwrite))
     elif args.cmd == "run":
         run_lane([n.strip() for n in args.lane.split(",") if n.strip()], args.minutes, args.slice, state_dir=state,
                  cache_dir=args.cache_dir)
