@@ -6,7 +6,8 @@
 #   e.g. tools/release/ship_model.sh airplane-partial runs/airplane_partial_edge airplane partial
 # Environment (deploying a network trained on another data set, e.g. a complete-shape network on tabletop depth):
 #   SCALE=m/unit  EXPORT_CATEGORY=name  EVAL_MODE=complete|partial (test set; default MODE)  REFINE=0 (no ICP
-#   re-scoring calibration: the file then runs the plain network by default)
+#   re-scoring calibration: the file then runs the plain network by default)  REFINE_ITERS=N (ICP iterations of the
+#   re-scoring, default 10; the complete-shape ModelNet models ship with 30)
 # Writes sdk/models/NAME{,.int8}.onnx and docs/results/models/NAME{,.int8}{.json,.png,.txt} (+ .norefine.txt).
 set -euo pipefail
 NAME=$1; RUN=$2; CAT=$3; MODE=$4; NUM=${5:-512}; ICPN=${6:-100}
@@ -18,7 +19,8 @@ $EQ calibrate --checkpoint "$RUN/latest.pt" --num "$NUM" --out "$RUN/calibrated.
 $EQ export --checkpoint "$RUN/calibrated.pt" -o "sdk/models/$NAME.onnx" --int8 --category "$ECAT" ${SCALE:+--scale $SCALE}
 for F in "$NAME" "$NAME.int8"; do
   if [ "$REFINE" != 0 ]; then
-    $EQ calibrate --model "sdk/models/$F.onnx" --num "$NUM" --views "$VIEWS" --refine "$REFINE"
+    $EQ calibrate --model "sdk/models/$F.onnx" --num "$NUM" --views "$VIEWS" --refine "$REFINE" \
+        ${REFINE_ITERS:+--refine-iters $REFINE_ITERS}
     $EQ eval --model "sdk/models/$F.onnx" --category "$ECAT" --mode "$EVAL_MODE" --refine 0 --icp-templates 0 \
         | tee "$OUT/$F.norefine.txt"
   fi
