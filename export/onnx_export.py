@@ -114,7 +114,7 @@ def _write_atomic(model_proto, path: pathlib.Path):
     os.replace(tmp, path)
 
 
-def export_model(model, path, *, category: str, scale: float, symmetry: str = "none", calibration=None,
+def export_model(model, path, *, category: str, scale: float, symmetry: str = "none", calibration=None, handle=None,
                  random_init: bool = False, training: dict | None = None, metrics: dict | None = None,
                  opset: int = DEFAULT_OPSET, verify: bool = True) -> pathlib.Path:
     """Export an ``EquiPoseNet`` to a single self-describing ONNX file and return its path.
@@ -149,7 +149,7 @@ def export_model(model, path, *, category: str, scale: float, symmetry: str = "n
     meta = encode_metadata(category=category, preset=cfg.name, model_config=cfg.to_dict(), num_points=cfg.num_points,
                            num_canonical_points=cfg.num_canonical_points, scale=scale, partial=model.partial,
                            symmetry=symmetry, calibration_rotation=cal_R, calibration_translation=cal_t,
-                           random_init=random_init, training=training, metrics=metrics)
+                           random_init=random_init, training=training, metrics=metrics, handle=handle)
     path = pathlib.Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
 
@@ -250,6 +250,9 @@ def export_checkpoint(checkpoint, path, *, category: str | None = None, scale: f
         training["trained_category"] = ckpt.get("category")
     if scale is not None and scale != ckpt.get("scale"):
         training["trained_scale"] = ckpt.get("scale")
+    from equipose.train.tabletop import TABLETOP
+    spec = TABLETOP.get(ckpt.get("category"))
+    kwargs.setdefault("handle", (1.0, 0.0, 0.0) if spec is not None and spec.handle else None)
     return export_model(model, path, category=category or ckpt.get("category", "unknown"),
                         scale=scale if scale is not None else ckpt.get("scale", 1.0),
                         symmetry=ckpt.get("symmetry", "none"), calibration=ckpt.get("calibration"),

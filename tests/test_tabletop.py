@@ -7,7 +7,7 @@ from equipose.train.tabletop import TABLETOP, ensure_tabletop_cache, is_tabletop
 
 
 def test_registry():
-    assert set(TABLETOP) == {"cup", "bowl", "can"}
+    assert set(TABLETOP) == {"cup", "bowl", "can", "mug"}
     assert is_tabletop("can") and not is_tabletop("airplane")
     for spec in TABLETOP.values():          # scale covers the largest instance: max radius ≤ 0.5 model units
         assert spec.radius_m[1] / spec.scale <= 0.5 + 1e-9
@@ -32,6 +32,21 @@ def test_can_sources_are_upright_and_metric(data_root):
     assert len(cyl) == TABLETOP["can"].cylinders
     squat = [c for _, c in cyl if np.ptp(c[:, 2]) < np.ptp(c[:, 0])]            # wider than tall: tins
     assert 0.3 * len(cyl) < len(squat) < 0.7 * len(cyl)
+
+
+def test_mug_sources_have_their_handle_along_x(data_root):
+    from equipose.core.handles import fit_handle
+    from equipose.train.modelnet import category_symmetry
+    train, test = tabletop_sources(data_root, "mug", "train"), tabletop_sources(data_root, "mug", "test")
+    assert len(train) >= 20 and len(test) >= 5                                  # the handled ModelNet cups + metric mugs
+    assert category_symmetry("mug") == "none"                                   # full 6D: the handle breaks the symmetry
+    for name, _, c in train + test:
+        fit = fit_handle(c)
+        assert fit.has_handle, name
+        assert abs(np.degrees(fit.azimuth)) < 8.0, (name, np.degrees(fit.azimuth))
+        assert np.ptp(c[:, 0]) > np.ptp(c[:, 1]), name                          # the handle makes x the longer side
+    cups = {n for n, _, _ in tabletop_sources(data_root, "cup", "test")}
+    assert {n for n, _, _ in test} < cups                                       # a strict subset: cups with handles
 
 
 def test_tabletop_cache_layout(data_root, tmp_path):

@@ -120,11 +120,11 @@ def _cached_icp(samples: list, templates: list, cache_dir, *, log=print, **opts)
 def _icp_template_clouds(root, category: str) -> list:
     """ICP-60 template candidates in the test samples' units: ModelNet train clouds (file units), or for tabletop
     categories the ModelNet source category resized to the middle of its metric radius range (metres)."""
-    from equipose.train.tabletop import TABLETOP
+    from equipose.train.tabletop import TABLETOP, modelnet_sources
     spec = TABLETOP.get(category)
     if spec is None:
         return list(load_modelnet(root, category, "train")[0])
-    clouds, _ = load_modelnet(root, spec.modelnet, "train", spec.train_limit)
+    clouds, _ = modelnet_sources(root, category, "train")
     return [c * float(np.mean(spec.radius_m)) for c in clouds]
 
 

@@ -22,7 +22,7 @@ import numpy as np
 
 from equipose.core.errors import ConfigError
 
-__all__ = ["TabletopSpec", "TABLETOP", "is_tabletop", "tabletop_sources", "ensure_tabletop_cache"]
+__all__ = ["TabletopSpec", "TABLETOP", "is_tabletop", "tabletop_sources", "modelnet_sources", "ensure_tabletop_cache"]
 
 
 @dataclass(frozen=True)
@@ -36,6 +36,7 @@ class TabletopSpec:
     train_limit: int | None = None                 # ModelNet train shapes used (None = all)
     test_limit: int | None = None                  # ModelNet test shapes used
     cylinders: int = 0                             # procedural closed cylinders added to train (train/shapes.py)
+    handle: bool = False                           # keep only cups with a handle, turned so it points to +x
     notes: str = ""
 
 
@@ -46,6 +47,10 @@ TABLETOP = {
     "cup": TabletopSpec(scale=0.16, modelnet="cup", radius_m=(0.045, 0.075),
                         meshes=((f"{_O}/mug/visual.ply", "none"), (f"{_O}/blue_cup/visual.ply", "none")),
                         scans=(f"{_P}/025_mug/points.xyz",), notes="mugs and cups, handle or not"),
+    "mug": TabletopSpec(scale=0.16, modelnet="cup", radius_m=(0.045, 0.075),
+                        meshes=((f"{_O}/mug/visual.ply", "none"), (f"{_O}/blue_cup/visual.ply", "none")),
+                        scans=(f"{_P}/025_mug/points.xyz",), handle=True,
+                        notes="mugs with a handle, full 6D: handle along +x (equipose.core.handles)"),
     "bowl": TabletopSpec(scale=0.2, modelnet="bowl", radius_m=(0.06, 0.1),
                          meshes=((f"{_O}/bowl/visual.ply", "none"), (f"{_O}/green_bowl/visual.ply", "none"),
                                  (f"{_O}/doraemon_bowl/visual.ply", "none")),
@@ -69,14 +74,13 @@ def is_tabletop(category: str) -> bool:
 
 def tabletop_sources(root, category: str, split: str, seed: int = 0) -> list:
     """[(name, shape dict in metres (object frame), complete points [P, 3] metres)] for one category and split."""
-    from equipose.train.modelnet import load_modelnet
+    from equipose.core.handles import align_handle
     from equipose.train.meshio import read_mesh
     from equipose.train.render import surfels_from_points
     if category not in TABLETOP:
         raise ConfigError(f"{category!r} is not a tabletop category ({', '.join(TABLETOP)})")
     spec, root = TABLETOP[category], pathlib.Path(root)
-    limit = spec.train_limit if split == "train" else spec.test_limit
-    clouds, ids = load_modelnet(root, spec.modelnet, split, limit)
+    clouds, ids = modelnet_sources(root, category, split)
     rng = np.random.default_rng([seed, 0 if split == "train" else 1, 77])
     out = []
     for cid, p in zip(ids, clouds):
@@ -91,6 +95,8 @@ def tabletop_sources(root, category: str, split: str, seed: int = 0) -> list:
             raise ConfigError(f"tabletop mesh {path} is missing; check --data-root")
         V, F = read_mesh(path)
         V = (V - V.mean(0)) @ _UP[up].T
+        if spec.handle:
+            V = align_handle(V)
         out.append((rel, {"vertices": V, "faces": F}, V))
     for rel in spec.scans:
         path = root / rel
@@ -98,6 +104,8 @@ def tabletop_sources(root, category: str, split: str, seed: int = 0) -> list:
             raise ConfigError(f"tabletop scan {path} is missing; check --data-root")
         p = np.loadtxt(path)[:, :3]
         p = p - p.mean(0)
+        if spec.handle:
+            p = align_handle(p)
         n, r = surfels_from_points(p)
         out.append((rel, {"points": p, "normals": n, "radii": r}, p))
     if spec.cylinders:                                                   # tins and tubes of every proportion
@@ -107,6 +115,22 @@ def tabletop_sources(root, category: str, split: str, seed: int = 0) -> list:
             V, F = cylinder_mesh(r, h)
             out.append((f"procedural/cylinder_{k}", {"vertices": V, "faces": F}, cylinder_surface(r, h, 2048, crng)))
     return out
+
+
+def modelnet_sources(root, category: str, split: str) -> tuple:
+    """(ModelNet clouds [S, 1024, 3] at max radius 1, ids) of a tabletop category's split: its ModelNet source
+    category, limited as the spec says; for a ``handle`` category only the cups with a handle, turned so it is +x."""
+    from equipose.core.handles import align_handle, fit_handle
+    from equipose.train.modelnet import load_modelnet
+    spec = TABLETOP[category]
+    clouds, ids = load_modelnet(root, spec.modelnet, split, spec.train_limit if split == "train" else spec.test_limit)
+    if not spec.handle:
+        return clouds, ids
+    fits = [fit_handle(c) for c in clouds]
+    keep = [k for k, f in enumerate(fits) if f.has_handle]
+    aligned = [align_handle(clouds[k], fits[k]) for k in keep]
+    aligned = [c / np.linalg.norm(c, axis=1).max() for c in aligned]                # turning keeps the max radius
+    return np.stack(aligned).astype(np.float32), [ids[k] for k in keep]
 
 
 def _views_for(name: str, views: int, split: str) -> int:
@@ -119,6 +143,10 @@ def _spec_key(spec: TabletopSpec, split: str) -> dict:
     d = asdict(spec)
     if split != "train" or not spec.cylinders:
         d.pop("cylinders")
+    if not spec.handle:
+        d.pop("handle")
+    else:
+        d["handle_fit"] = 1                        # version of equipose.core.handles. rule
     return d
 
 

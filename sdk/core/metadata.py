@@ -22,7 +22,9 @@ Keys (all values are strings):
     metrics                 JSON: metrics on the test split ({} if none)
 Optional keys (absent in older files): ``precision`` "fp32" | "int8" (weights of the graph's MatMul/Gemm);
 ``refine_calibration`` JSON {k, iters, rotation 3×3, translation 3, ...}: the calibration for the SDK's ICP
-re-scoring of the k best hypotheses (``equipose calibrate --model M --refine K``).
+re-scoring of the k best hypotheses (``equipose calibrate --model M --refine K``); ``handle`` JSON {"direction": 3}:
+the unit handle direction in the category frame, for categories whose pose includes a handle (``mug``: +x); the SDK
+then reports whether the handle was seen (``PoseResult.handle_visible``).
 """
 from __future__ import annotations
 
@@ -45,8 +47,8 @@ REQUIRED_KEYS = ("equipose_format", "equipose_version", "category", "preset", "m
 def encode_metadata(*, category: str, preset: str, model_config: dict, num_points: int, num_canonical_points: int,
                     scale: float, partial: bool, symmetry: str = "none", calibration_rotation=None,
                     calibration_translation=None, random_init: bool = False, training: dict | None = None,
-                    metrics: dict | None = None) -> dict:
-    """Build the ``{key: str}`` metadata dict of an equipose model."""
+                    metrics: dict | None = None, handle=None) -> dict:
+    """Build the ``{key: str}`` metadata dict of an equipose model. ``handle``: [3] handle direction (or None)."""
     from equipose import __version__
     R = np.eye(3) if calibration_rotation is None else np.asarray(calibration_rotation, dtype=float)
     t = np.zeros(3) if calibration_translation is None else np.asarray(calibration_translation, dtype=float)
@@ -69,7 +71,15 @@ def encode_metadata(*, category: str, preset: str, model_config: dict, num_point
         "training": json.dumps(training or {}),
         "metrics": json.dumps(metrics or {}),
         "precision": "fp32",
-    }
+    } | ({} if handle is None else {"handle": json.dumps({"direction": _unit_handle(handle, "handle").tolist()})})
+
+
+def _unit_handle(v, source: str) -> np.ndarray:
+    d = np.asarray(v, dtype=np.float64).reshape(3)
+    n = float(np.linalg.norm(d))
+    if not (np.all(np.isfinite(d)) and n > 0 and abs(d[2]) < 1e-6 * n):
+        raise MetadataError(f"{source}: handle direction must be a finite horizontal vector (z = 0), got {d.tolist()}")
+    return d / n
 
 
 def _check_symmetry(s: str):
@@ -125,6 +135,10 @@ def decode_metadata(props: dict, source: str = "model") -> dict:
     except (ValueError, KeyError, TypeError) as e:
         raise MetadataError(f"{source}: malformed refine_calibration metadata ({e}); re-run 'equipose calibrate "
                             "--model'") from None
+    try:
+        out["handle"] = _unit_handle(json.loads(props["handle"])["direction"], source) if props.get("handle") else None
+    except (ValueError, KeyError, TypeError) as e:
+        raise MetadataError(f"{source}: malformed handle metadata ({e}); re-export the model") from None
     _check_symmetry(out["symmetry"])
     if not (math.isfinite(out["scale"]) and out["scale"] > 0):
         raise MetadataError(f"{source}: scale must be positive, got {out['scale']}")

@@ -15,6 +15,7 @@ import numpy as np
 
 from equipose import preprocess as _crop
 from equipose.core.errors import ConfigError, EquiposeError, InvalidPointsError, ModelFormatError, RegionError
+from equipose.runtime.handle import observe_handle
 from equipose.runtime.hypotheses import apply_calibration, canonicalise_rotation, parse_symmetry, select_hypothesis
 from equipose.core.metadata import decode_metadata
 from equipose.core.presets import ModelConfig, total_macs
@@ -40,16 +41,13 @@ class PoseEstimator:
         model_path: an ``.onnx`` file written by ``equipose export``, or a shipped model's name (``equipose models``).
         threads: onnxruntime intra-op thread budget (None = onnxruntime's default, the physical core count).
         adaptive_threads: run single objects of a light model (< ``LIGHT_MODEL_MACS`` per object: every edge preset) on
-            one thread and batches on the whole budget. Such a graph is hundreds of small kernels, where handing each
-            one to a second thread usually costs more than it saves (docs/benchmarks.md). Attribute ``single_thread``:
-            whether it applies (the 1-thread session is then opened with the main one).
+            one thread, batches on the whole budget: hundreds of small kernels gain nothing from a second thread
+            (docs/benchmarks.md). Attribute ``single_thread``: whether it applies.
         crop_options: defaults for ``equipose.preprocess.crop_points`` (e.g. ``{"max_depth": 2.0}``).
         top_k: hypotheses listed in each result.
-        refine: ICP re-scoring (``equipose.runtime.refine``): the ``refine`` best hypotheses are refined by ICP against the
-            model's own predicted canonical shape and re-ranked by residual (0 = off: the network's argmin).
-            "auto" (default): what the model file was calibrated for (metadata ``refine_calibration``, written by
-            ``equipose calibrate --model M --refine K``), else 0. With refinement the refined calibration is used
-            when the file has one.
+        refine: ICP re-scoring (``equipose.runtime.refine``) of the ``refine`` best hypotheses against the predicted
+            canonical shape, re-ranked by residual (0 = the network's argmin). "auto" (default): what the file was
+            calibrated for (metadata ``refine_calibration``, ``equipose calibrate --model M --refine K``), else 0.
         refine_iters: ICP iterations per refined hypothesis (default: the file's, else 10).
         model_points: instance-level mode (``equipose.runtime.instance``): [M, 3] metres of the object's own model
             (CAD frame); results are that model's pose (camera ← CAD), found by ICP of the ``instance_k`` best
@@ -82,6 +80,7 @@ class PoseEstimator:
         self.symmetry = str(self.metadata["symmetry"])
         parse_symmetry(self.symmetry)                                           # unsupported spec → MetadataError
         self.random_init = bool(self.metadata["random_init"])
+        self.handle = self.metadata.get("handle")                               # [3] category frame, or None
         self.calibration_rotation = np.asarray(self.metadata["calibration_rotation"], np.float64)     # [3, 3]
         self.calibration_translation = np.asarray(self.metadata["calibration_translation"], np.float64)  # [3]
         rcal = self.metadata["refine_calibration"]                              # None, or parsed and checked
@@ -125,7 +124,6 @@ class PoseEstimator:
                 "random_init", "equipose_version", "training", "metrics")
         return {k: self.metadata[k] for k in keys}
 
-    # ------------------------------------------------------------------------------------------------------------------
     def run_model(self, model_points: np.ndarray) -> dict:
         """Raw ONNX run. Convention: ``model_points`` [B, N, 3] float32 model units → dict of the 4 outputs."""
         x = np.ascontiguousarray(model_points, dtype=np.float32)
@@ -174,9 +172,11 @@ class PoseEstimator:
             symmetry=self.symmetry, symmetry_axis=None if kind == "none" else R[:, axis].copy(),
             rotation_canonical=canonicalise_rotation(R, self.symmetry), category=self.category,
             random_init=self.random_init)
+        if self.handle is not None:                                             # was the handle seen?
+            res.set_handle(self.handle, *observe_handle(self.handle, prep.model_points, canon @ dR.T + dt, R,
+                                                        t_cat[sel.index]))
         return res, _ms(t0)
 
-    # ------------------------------------------------------------------------------------------------------------------
     def predict_points(self, points) -> PoseResult:
         """Pose of one object from its points.
 
@@ -293,7 +293,6 @@ class PoseEstimator:
         return self.predict_batch(depth, K, masks=masks, depth_unit=depth_unit, image_size=image_size,
                                   return_errors=return_errors, **crop_options)
 
-    # ------------------------------------------------------------------------------------------------------------------
     def track(self, source, **kwargs):
         """Stream poses over a frame source; see ``equipose.runtime.tracking.track`` for the options. Yields ``TrackRecord``."""
         from equipose.runtime.tracking import track

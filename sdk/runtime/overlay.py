@@ -65,7 +65,8 @@ def draw_mask(image, mask, color=(255, 0, 255), alpha: float = 0.35) -> np.ndarr
 
 def draw_pose(image, K, result, *, axis_length: float | None = None, color=(0, 255, 0), thickness: int = 2,
               label: bool = True) -> np.ndarray:
-    """Axes (x red, y green, z blue) + oriented 3D box of a ``PoseResult`` on a copy of ``image``."""
+    """Axes (x red, y green, z blue) + oriented 3D box of a ``PoseResult`` on a copy of ``image``; for a model with a
+    handle, a longer arrow along the handle direction labelled "handle" (orange when seen, grey "handle?" if not)."""
     import cv2
     img = to_bgr(image)
     R, t = np.asarray(result.rotation), np.asarray(result.translation)
@@ -85,8 +86,20 @@ def draw_pose(image, K, result, *, axis_length: float | None = None, color=(0, 2
         for k, col in enumerate([(0, 0, 255), (0, 255, 0), (255, 0, 0)]):
             if f_axes[k + 1]:
                 cv2.line(img, ipt(uv_axes[0]), ipt(uv_axes[k + 1]), col, thickness + 1, cv2.LINE_AA)
+    hd = getattr(result, "handle_direction", None)
+    if hd is not None and f_axes[0]:                                            # the handle axis, labelled
+        tip, f_tip = project((t + 1.4 * axis_length * np.asarray(hd))[None], K)
+        if f_tip[0]:
+            col = (0, 215, 255) if result.handle_visible else (160, 160, 160)
+            cv2.arrowedLine(img, ipt(uv_axes[0]), ipt(tip[0]), col, thickness + 1, cv2.LINE_AA, tipLength=0.15)
+            name = "handle" if result.handle_visible else "handle?"
+            cv2.putText(img, name, ipt(tip[0] + np.array([4, 4])), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (0, 0, 0), 3,
+                        cv2.LINE_AA)
+            cv2.putText(img, name, ipt(tip[0] + np.array([4, 4])), cv2.FONT_HERSHEY_SIMPLEX, 0.45, col, 1, cv2.LINE_AA)
     if label and f_axes[0]:
-        txt = f"{result.category or 'obj'} c={result.confidence:.2f}" + (" ?flip" if result.ambiguous else "")
+        flag = " ?flip" if result.ambiguous and getattr(result, "handle_visible", None) is not False else ""
+        flag += " handle hidden" if getattr(result, "handle_visible", None) is False else ""
+        txt = f"{result.category or 'obj'} c={result.confidence:.2f}" + flag
         if result.object_id is not None:
             txt = f"#{result.object_id} " + txt
         org = ipt(uv_axes[0] + np.array([6, -6]))

@@ -26,7 +26,8 @@ class PoseResult:
         translation: [3] metres, camera frame (the category frame's origin).
         score: chamfer score of the chosen hypothesis (model units², lower better).
         confidence: relative margin to the best hypothesis > 30° away (0 = a tie, 1 = no competitor).
-        ambiguous: a ≈180° flip scores almost as well (front/back or upside-down uncertain).
+        ambiguous: the rotation is not settled by what was seen: a ≈180° flip scores almost as well (front/back or
+            upside-down uncertain), or, for a model with a handle, the handle was not seen.
         canonical_shape: [M, 3] metres, camera frame. canonical_shape_object: [M, 3] metres, category frame.
         hypothesis_index: chosen hypothesis (0..59); top_k: best hypotheses (index, score, angle to best).
         symmetry: metadata symmetry string; symmetry_axis: [3] camera-frame unit axis (None if not symmetric);
@@ -35,6 +36,9 @@ class PoseResult:
         crop: crop diagnostics, object_id (tracking), random_init (the model has random weights),
         points_centre: [3] metres, camera frame, centroid of the object points the model saw (tracking associates
             objects by it: it does not depend on the chosen hypothesis).
+        handle_visible: models with a handle (metadata ``handle``, e.g. ``mug``): whether observed points lie where
+            the posed handle is (None for other models); handle_points: how many; handle_direction: [3] camera-frame
+            unit handle direction (None for other models). A hidden handle also sets ``ambiguous``.
     """
     rotation: np.ndarray
     translation: np.ndarray
@@ -57,6 +61,10 @@ class PoseResult:
     raw_rotation: np.ndarray | None = None      # before temporal smoothing (tracking only)
     raw_translation: np.ndarray | None = None
     points_centre: np.ndarray | None = None
+    handle_visible: bool | None = None
+    handle_points: int = 0
+    handle_direction: np.ndarray | None = None
+    handle_direction_object: np.ndarray | None = None
 
     def set_pose(self, rotation, translation):
         """Replace the pose (e.g. after smoothing) and update everything derived from it (shape, symmetry axis)."""
@@ -67,6 +75,15 @@ class PoseResult:
         kind, axis, _ = parse_symmetry(self.symmetry)
         self.symmetry_axis = None if kind == "none" else self.rotation[:, axis].copy()
         self.rotation_canonical = canonicalise_rotation(self.rotation, self.symmetry)
+        if self.handle_direction_object is not None:
+            self.handle_direction = self.rotation @ self.handle_direction_object
+
+    def set_handle(self, direction_object, visible: bool, count: int):
+        """Record the handle check (``equipose.runtime.handle``); a handle that was not seen makes the pose ambiguous."""
+        self.handle_direction_object = np.asarray(direction_object, np.float64).reshape(3)
+        self.handle_direction = self.rotation @ self.handle_direction_object
+        self.handle_visible, self.handle_points = bool(visible), int(count)
+        self.ambiguous = bool(self.ambiguous or not visible)
 
     @property
     def quaternion(self) -> np.ndarray:
@@ -114,6 +131,10 @@ class PoseResult:
             "points_centre_m": None if self.points_centre is None else np.round(self.points_centre, 6).tolist(),
             "random_init": bool(self.random_init),
         }
+        if self.handle_visible is not None:
+            d["handle_visible"] = bool(self.handle_visible)
+            d["handle_points"] = int(self.handle_points)
+            d["handle_direction"] = np.round(self.handle_direction, 6).tolist()
         if include_shape:
             d["canonical_shape_m"] = np.round(self.canonical_shape, 5).tolist()
         return d
@@ -127,6 +148,8 @@ class PoseResult:
         rv = Rotation.from_matrix(self.rotation).as_rotvec(degrees=True)
         t = self.translation
         flag = " AMBIGUOUS(flip?)" if self.ambiguous else ""
+        if self.handle_visible is not None:
+            flag += " handle seen" if self.handle_visible else " handle NOT seen"
         oid = "" if self.object_id is None else f"object {self.object_id}: "
         return (f"{oid}{self.category or 'object'} R(rotvec°)=[{rv[0]:7.1f} {rv[1]:7.1f} {rv[2]:7.1f}] "
                 f"t(m)=[{t[0]:+.3f} {t[1]:+.3f} {t[2]:+.3f}] confidence={self.confidence:.2f}{flag}")

@@ -1,0 +1,124 @@
+"""The handle of a mug: find it on a z-up cloud and turn the cloud about z so that the handle points along +x.
+
+Convention:
+    Input: an upright cup-like cloud [N, 3] (any unit), symmetry axis parallel to +z, as the ModelNet40 ``cup`` files
+    and the OCRTOC / YCB mug meshes are stored. Output frame (the ``mug`` category frame): the same points turned
+    about the z axis through the origin so that the handle's azimuth, seen from the fitted body axis, is 0 (+x).
+    Nothing is translated: the origin stays the file's.
+
+How: the body axis is a circle fit (algebraic, refit on the points inside 1.1× the per-height median radius); each
+point's excess radius over its height band's median, above 15 %, is binned by azimuth; the handle is the 30° window
+with most excess. A cup "has a handle" when that window holds ≥ ``min_share`` of all the excess and the excess is
+≥ ``min_mass`` per point — on the 99 ModelNet40 cups this keeps the clearly handled ones (checked by eye on a
+top-down plot of every cup).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from equipose.core.errors import InvalidPointsError
+
+__all__ = ["HandleFit", "fit_handle", "align_handle", "turn_about_z", "handle_zone_count", "HANDLE_MIN_POINTS",
+           "HANDLE_MIN_FRACTION"]
+
+HANDLE_MIN_POINTS = 4            # observed points inside the handle zone for the handle to count as seen ...
+HANDLE_MIN_FRACTION = 0.01       # ... and at least this fraction of the observed points
+
+
+@dataclass(frozen=True)
+class HandleFit:
+    azimuth: float          # radians, handle direction about +z measured from +x
+    share: float            # fraction of the excess radius inside the handle's 30° window
+    mass: float             # mean excess radius per point (relative to the body radius)
+    centre: tuple           # (x, y) of the fitted body axis, input units
+    has_handle: bool
+
+
+def fit_handle(points: np.ndarray, *, bands: int = 6, bins: int = 36, min_share: float = 0.45,
+               min_mass: float = 0.008) -> HandleFit:
+    """Handle azimuth of an upright cup cloud [N, 3] (see the module docstring)."""
+    p = np.asarray(points, np.float64)
+    if p.ndim != 2 or p.shape[1] != 3 or len(p) < 50:
+        raise InvalidPointsError(f"fit_handle needs an [N ≥ 50, 3] cloud, got shape {p.shape}")
+    z = p[:, 2]
+    edges = np.quantile(z, np.linspace(0.0, 1.0, bands + 1))
+    band = np.clip(np.searchsorted(edges, z) - 1, 0, bands - 1)                     # [N] height band
+
+    def band_radius(r):                                                              # [N] median radius of its band
+        med = np.array([np.median(r[band == k]) if np.any(band == k) else np.median(r) for k in range(bands)])
+        return med[band]
+
+    c = np.median(p[:, :2], axis=0)                                                  # [2] first guess of the axis
+    for _ in range(4):
+        r = np.linalg.norm(p[:, :2] - c, axis=1)                                     # [N]
+        body = r < 1.1 * band_radius(r)
+        if body.sum() < 10:
+            break
+        A = np.c_[2.0 * p[body, :2], np.ones(body.sum())]                            # x² + y² = 2cx·x + 2cy·y + k
+        c = np.linalg.lstsq(A, (p[body, :2] ** 2).sum(1), rcond=None)[0][:2]
+    d = p[:, :2] - c                                                                 # [N, 2]
+    r = np.linalg.norm(d, axis=1)
+    excess = np.maximum(r / np.maximum(band_radius(r), 1e-12) - 1.15, 0.0)           # [N]
+    az = np.arctan2(d[:, 1], d[:, 0])                                                # [N] radians
+    k = ((az + np.pi) / (2 * np.pi) * bins).astype(int) % bins
+    hist = np.bincount(k, weights=excess, minlength=bins)                            # [bins]
+    window = hist + np.roll(hist, 1) + np.roll(hist, -1)                             # 30° windows
+    peak = int(window.argmax())
+    total = float(hist.sum())
+    centre_az = -np.pi + (peak + 0.5) * 2 * np.pi / bins
+    near = np.abs(np.angle(np.exp(1j * (az - centre_az)))) < np.radians(30)
+    w = excess * near
+    azimuth = float(np.arctan2((w * np.sin(az)).sum(), (w * np.cos(az)).sum())) if w.sum() > 0 else 0.0
+    share = float(window[peak] / total) if total > 0 else 0.0
+    mass = total / len(p)
+    return HandleFit(azimuth, share, mass, (float(c[0]), float(c[1])), share >= min_share and mass >= min_mass)
+
+
+def turn_about_z(angle: float) -> np.ndarray:
+    """[3, 3] rotation by ``angle`` radians about +z."""
+    c, s = np.cos(angle), np.sin(angle)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def align_handle(points: np.ndarray, fit: HandleFit | None = None) -> np.ndarray:
+    """``points`` [N, 3] turned about z so the handle points along +x (same units, origin kept)."""
+    fit = fit or fit_handle(points)
+    return np.asarray(points, np.float64) @ turn_about_z(-fit.azimuth).T
+
+
+def handle_zone_count(observed_obj: np.ndarray, canonical_obj: np.ndarray, direction) -> int:
+    """How many observed points fall where the handle is, both clouds in the category frame.
+
+    Convention: ``observed_obj`` [P, 3] and ``canonical_obj`` [M, 3] in the same unit, category frame (z up, the
+    handle along ``direction`` [3], a horizontal unit vector). The body axis and the per-height body radius come from
+    the canonical shape (``fit_handle``'s circle fit, with the canonical points turned so ``direction`` is +x; the body
+    radius of a height band is the 90th percentile radius of its points away from the handle); the handle zone is the
+    part of space beyond 1.15× the body radius of the point's height band, within ±40° of the
+    handle azimuth and inside the canonical shape's height range. Points there cannot belong to the body: if the pose
+    were turned about the axis, or the handle were hidden, the zone would be empty.
+    """
+    obs = np.asarray(observed_obj, np.float64)
+    can = np.asarray(canonical_obj, np.float64)
+    d = np.asarray(direction, np.float64).reshape(3)
+    if obs.ndim != 2 or obs.shape[1] != 3 or can.ndim != 2 or can.shape[1] != 3 or len(can) < 50:
+        raise InvalidPointsError(f"handle_zone_count needs [P, 3] and [M ≥ 50, 3] clouds, got {obs.shape}, {can.shape}")
+    turn = turn_about_z(-np.arctan2(d[1], d[0]))                                     # handle direction → +x
+    obs, can = obs @ turn.T, can @ turn.T
+    fit = fit_handle(can)
+    c = np.asarray(fit.centre)
+    zc = can[:, 2]
+    edges = np.quantile(zc, np.linspace(0.0, 1.0, 7))
+    vc = can[:, :2] - c
+    rc = np.linalg.norm(vc, axis=1)
+    off = np.degrees(np.abs(np.arctan2(vc[:, 1], vc[:, 0]))) > 40.0                # canonical points away from the handle
+    band_c = np.clip(np.searchsorted(edges, zc) - 1, 0, 5)
+    sel = [off & (band_c == k) for k in range(6)]
+    body = np.array([np.percentile(rc[m], 90) if m.sum() >= 3 else np.percentile(rc[off], 90) for m in sel])
+    inside_h = (obs[:, 2] >= edges[0]) & (obs[:, 2] <= edges[-1])
+    band_o = np.clip(np.searchsorted(edges, obs[:, 2]) - 1, 0, 5)
+    v = obs[:, :2] - c
+    r = np.linalg.norm(v, axis=1)
+    az = np.degrees(np.abs(np.arctan2(v[:, 1], v[:, 0])))
+    return int(np.sum(inside_h & (r > 1.15 * body[band_o]) & (az < 40.0)))

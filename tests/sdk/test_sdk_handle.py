@@ -1,0 +1,98 @@
+"""Mug handle: finding it on a cloud, the handle-zone visibility check, metadata, and the estimator's report."""
+import shutil
+
+import numpy as np
+import pytest
+
+from equipose.core.errors import InvalidPointsError, MetadataError
+from equipose.core.handles import align_handle, fit_handle, handle_zone_count, turn_about_z
+
+
+def synthetic_mug(azimuth_deg=0.0, radius=0.04, height=0.10, n=3000, handle=True, seed=0):
+    """[P, 3] metres: an open cylinder with a bottom and (optionally) a C-shaped handle at ``azimuth_deg`` about +z."""
+    rng = np.random.default_rng(seed)
+    a = rng.uniform(0, 2 * np.pi, n)
+    z = rng.uniform(-height / 2, height / 2, n)
+    side = np.c_[radius * np.cos(a), radius * np.sin(a), z]
+    rb = radius * np.sqrt(rng.uniform(0, 1, n // 4))
+    ab = rng.uniform(0, 2 * np.pi, n // 4)
+    bottom = np.c_[rb * np.cos(ab), rb * np.sin(ab), np.full(n // 4, -height / 2)]
+    parts = [side, bottom]
+    if handle:                                                                  # half ring in the xz-plane, tube 5 mm
+        m = n // 5
+        phi = rng.uniform(-np.pi / 2, np.pi / 2, m)
+        psi = rng.uniform(0, 2 * np.pi, m)
+        ring_r, tube = 0.028, 0.005
+        rr = ring_r + tube * np.cos(psi)
+        parts.append(np.c_[radius + rr * np.cos(phi) - 0.008, tube * np.sin(psi), rr * np.sin(phi)])
+    p = np.vstack(parts)
+    return p @ turn_about_z(np.radians(azimuth_deg)).T
+
+
+@pytest.mark.parametrize("azimuth", [0.0, 37.0, 135.0, -100.0])
+def test_fit_handle_finds_the_azimuth(azimuth):
+    fit = fit_handle(synthetic_mug(azimuth))
+    assert fit.has_handle
+    err = np.degrees(np.angle(np.exp(1j * (fit.azimuth - np.radians(azimuth)))))
+    assert abs(err) < 5.0, (azimuth, np.degrees(fit.azimuth))
+    aligned = align_handle(synthetic_mug(azimuth))
+    assert abs(fit_handle(aligned).azimuth) < np.radians(5.0)
+
+
+def test_fit_handle_without_handle_and_bad_input():
+    assert not fit_handle(synthetic_mug(handle=False)).has_handle
+    with pytest.raises(InvalidPointsError):
+        fit_handle(np.zeros((10, 3)))
+    assert issubclass(InvalidPointsError, ValueError)
+
+
+def test_handle_zone_sees_the_handle_only_where_it_is():
+    mug = synthetic_mug(0.0)
+    canonical = synthetic_mug(0.0, n=800, seed=1)
+    toward = mug[mug[:, 0] > -0.01]                                             # the half facing the handle side
+    away = mug[mug[:, 0] < -0.01]                                               # seen from the back: handle hidden
+    assert handle_zone_count(toward, canonical, [1, 0, 0]) > 50
+    assert handle_zone_count(away, canonical, [1, 0, 0]) == 0
+    turned = toward @ turn_about_z(np.radians(90.0)).T                          # pose wrong by 90° about the axis
+    assert handle_zone_count(turned, canonical, [1, 0, 0]) == 0
+    q = turn_about_z(np.radians(90.0))                                          # a frame with the handle along +y
+    assert handle_zone_count(turned, canonical @ q.T, [0, 1, 0]) > 50
+    with pytest.raises(InvalidPointsError):
+        handle_zone_count(toward, canonical[:10], [1, 0, 0])
+
+
+def test_handle_metadata_round_trip():
+    from equipose.core.metadata import decode_metadata, encode_metadata
+    base = dict(category="mug", preset="tiny", model_config={}, num_points=256, num_canonical_points=256, scale=0.16,
+                partial=True)
+    meta = encode_metadata(**base, handle=(2.0, 0.0, 0.0))
+    assert np.allclose(decode_metadata(meta)["handle"], [1.0, 0.0, 0.0])
+    assert decode_metadata(encode_metadata(**base))["handle"] is None
+    for bad in ('{"direction": [0, 0, 1]}', '{"direction": [0, 0, 0]}', '{"dir": [1, 0, 0]}', "[1, 0"):
+        with pytest.raises(MetadataError):
+            decode_metadata(dict(meta, handle=bad))
+
+
+def test_estimator_reports_the_handle(tiny_model, tmp_path):
+    pytest.importorskip("onnx")
+    from equipose import PoseEstimator
+    from equipose.export.onnx_export import update_metadata
+    path = tmp_path / "mug_handle.onnx"
+    shutil.copy(tiny_model, path)
+    update_metadata(path, handle={"direction": [1.0, 0.0, 0.0]})
+    est = PoseEstimator(path, threads=1)
+    assert np.allclose(est.handle, [1, 0, 0])
+    mug = synthetic_mug(30.0) + np.array([0.0, 0.0, 0.7])
+    res = est.predict_points(mug[mug[:, 2] < 0.7 + 0.02])
+    assert res.handle_visible in (True, False)                                  # random weights: the check, not the pose
+    d = res.to_dict()
+    assert d["handle_visible"] == res.handle_visible and len(d["handle_direction"]) == 3
+    assert np.allclose(res.handle_direction, res.rotation @ [1, 0, 0])
+    if not res.handle_visible:
+        assert res.ambiguous
+    res.set_pose(np.eye(3), res.translation)                                    # smoothing keeps it consistent
+    assert np.allclose(res.handle_direction, [1, 0, 0])
+    img = res.plot(np.zeros((480, 640), np.uint16) + 700, np.array([[525, 0, 320], [0, 525, 240], [0, 0, 1.0]]))
+    assert img.shape == (480, 640, 3)
+    plain = PoseEstimator(tiny_model, threads=1).predict_points(mug)
+    assert plain.handle_visible is None and "handle_visible" not in plain.to_dict()
