@@ -123,7 +123,8 @@ def export_model(model, path, *, category: str, scale: float, symmetry: str = "n
         model: ``equipose.train.EquiPoseNet`` (exported in eval mode; its training flag is restored).
         path: output ``.onnx`` file (parent folders are created; written atomically).
         category, scale (metres per model unit), symmetry, calibration ({"rotation", "translation"} or None),
-        random_init, training, metrics: written to ``metadata_props`` via ``equipose.core.metadata.encode_metadata``.
+        handle ([3] handle direction in the category frame, or None), random_init, training, metrics: written to
+            ``metadata_props`` via ``equipose.core.metadata.encode_metadata``.
         opset: ONNX opset of the default domain.
         verify: run the file once in onnxruntime on the export example and compare with torch (max abs ≤ 1e-4).
     Raises:
@@ -251,7 +252,7 @@ def export_checkpoint(checkpoint, path, *, category: str | None = None, scale: f
     if scale is not None and scale != ckpt.get("scale"):
         training["trained_scale"] = ckpt.get("scale")
     from equipose.train.tabletop import TABLETOP
-    spec = TABLETOP.get(ckpt.get("category"))
+    spec = TABLETOP.get(category or ckpt.get("category"))                 # e.g. a cup network exported as "mug"
     kwargs.setdefault("handle", (1.0, 0.0, 0.0) if spec is not None and spec.handle else None)
     return export_model(model, path, category=category or ckpt.get("category", "unknown"),
                         scale=scale if scale is not None else ckpt.get("scale", 1.0),

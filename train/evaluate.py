@@ -71,14 +71,14 @@ def predict_checkpoint(model, ckpt: dict, samples: list, batch_size: int = 16) -
 
 def predict_onnx(model_path, samples: list, batch_size: int = 16, refine="auto") -> tuple:
     """The exported model through ``equipose.PoseEstimator`` (what users run; ``refine``: its ICP re-scoring of
-    the k best hypotheses). Returns (R, t metres, estimator)."""
+    the k best hypotheses). Returns (R, t metres, estimator, handle seen [S] bool or None for models without one)."""
     from equipose.runtime.estimator import PoseEstimator
     est = PoseEstimator(model_path, refine=refine)
-    Rs, ts = [], []
+    Rs, ts, seen = [], [], []
     for i in range(0, len(samples), batch_size):
         for r in est.predict_points_batch([s["points_m"] for s in samples[i:i + batch_size]]):
-            Rs.append(r.rotation); ts.append(r.translation)
-    return np.stack(Rs), np.stack(ts), est
+            Rs.append(r.rotation); ts.append(r.translation); seen.append(r.handle_visible)
+    return np.stack(Rs), np.stack(ts), est, None if est.handle is None else np.array(seen, bool)
 
 
 def run_icp(samples: list, templates: list, bidirectional: bool, obs_points: int = 256, iters: int = 20,
@@ -161,6 +161,7 @@ def evaluate(*, category: str, mode: str, checkpoint=None, model_path=None, data
         from equipose.runtime.estimator import PoseEstimator
         est = PoseEstimator(model_path)
         num_points, symmetry, scale = est.num_points, est.symmetry, est.scale
+        symmetry = "none" if est.handle is not None else symmetry   # the handle stage makes the pose full 6D
     unsigned = category == "can"
     ds = test_dataset(root, category, mode, num_points, limit=limit, cache_dir=cache_dir)
     samples = [ds.raw(i) for i in range(len(ds))]
@@ -174,11 +175,17 @@ def evaluate(*, category: str, mode: str, checkpoint=None, model_path=None, data
     if checkpoint is not None:
         R, t = predict_checkpoint(model, ckpt, samples)
     else:
-        R, t, est = predict_onnx(model_path, samples, refine="auto" if refine is None else refine)
+        R, t, est, seen = predict_onnx(model_path, samples, refine="auto" if refine is None else refine)
         refine = est.refine
     ours_s = time.perf_counter() - t0
     row, r_err, t_err = _row("equipose" + (f"+icp{refine}" if refine else ""), R, t, samples, symmetry, unsigned)
     rows, errors = [row], {"equipose": (r_err, t_err)}
+    if checkpoint is None and seen is not None:                    # handle models: the views whose handle was seen
+        for label, m in (("handle seen", seen), ("handle hidden", ~seen)):
+            if m.any():
+                sub = [sm for sm, k in zip(samples, m) if k]
+                rows.append({**_row(f"{row['method']} [{label}]", R[m], t[m], sub, symmetry, unsigned)[0],
+                             "fraction": float(m.mean())})
 
     pick, trows, icp_set, icp_s = [], [], [], 0.0
     if icp_templates > 0:                                          # 0: ours only
@@ -213,6 +220,7 @@ def format_table(result: dict) -> str:
     n_icp = result.get("_info", {}).get("icp_samples", result["n"])
     for r in result["rows"]:
         name = r["method"] + (f" (n={n_icp})" if r["method"] == "icp60" and n_icp != result["n"] else "")
+        name += f" ({r['fraction']:.0%} of views)" if "fraction" in r else ""
         lines.append(f"{name:10s} {r['rot_mean_deg']:9.2f} {r['rot_median_deg']:8.2f} {r['trans_mean']:7.3f} "
                      f"{r['trans_median']:7.3f} {r['acc_5deg']:5.2f} {r['acc_5deg_005']:7.2f} {r['flip_rate']:5.2f}")
     return "\n".join(lines)
@@ -223,9 +231,11 @@ def metrics_for_metadata(result: dict) -> dict:
     rows = {r["method"]: {k: round(float(r[k]), 4) for k in row_keys()[1:]} for r in result["rows"]}
     info = result.get("_info", {})
     ours = result["rows"][0]["method"]                                  # "equipose" or "equipose+icpK"
+    subsets = {r["method"].split("[")[1].rstrip("]"): {**rows[r["method"]], "fraction": round(r["fraction"], 4)}
+               for r in result["rows"] if "fraction" in r}                 # e.g. "handle seen" / "handle hidden"
     return {"test_set": f"{result['category']}/{result['mode']} test split (equipose.train.evaluate)",
             "n": int(result["n"]), "icp60_samples": int(info.get("icp_samples", result["n"])),
-            "method": ours, **rows[ours], "icp60": rows.get("icp60", {})}
+            "method": ours, **rows[ours], "icp60": rows.get("icp60", {}), **subsets}
 
 
 def write_json(result: dict, path) -> None:

@@ -18,7 +18,8 @@ __all__ = ["default_data_root", "modelnet_files", "load_modelnet", "load_complet
            "SYMMETRIC_CATEGORIES", "category_symmetry", "TEST_ROTATIONS", "TEST_SEED"]
 
 MODELNET_SCALE = 2.0               # file units per model unit: max radius 1 → 0.5
-SYMMETRIC_CATEGORIES = ("bottle", "bowl", "cup", "can", "cylinder")
+# ``mug``: the network learns the axis only; the SDK's handle stage (equipose.runtime.handle) finds the azimuth
+SYMMETRIC_CATEGORIES = ("bottle", "bowl", "cup", "can", "cylinder", "mug")
 TEST_ROTATIONS = 5                 # paper protocol: 5 random rotations per test instance
 TEST_SEED = 2913
 
@@ -32,7 +33,8 @@ def default_data_root() -> pathlib.Path:
 
 
 def category_symmetry(category: str) -> str:
-    """``continuous:z`` for rotationally symmetric categories, else ``none``."""
+    """The network's symmetry: ``continuous:z`` for rotationally symmetric categories (and ``mug``, whose handle the SDK
+    resolves from the points), else ``none``."""
     return "continuous:z" if category in SYMMETRIC_CATEGORIES else "none"
 
 

@@ -146,7 +146,7 @@ def _spec_key(spec: TabletopSpec, split: str) -> dict:
     if not spec.handle:
         d.pop("handle")
     else:
-        d["handle_fit"] = 1                        # version of equipose.core.handles. rule
+        d["handle_fit"] = 2                        # version of equipose.core.handles' rule
     return d
 
 

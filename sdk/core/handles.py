@@ -21,8 +21,9 @@ import numpy as np
 from equipose.core.errors import InvalidPointsError
 
 __all__ = ["HandleFit", "fit_handle", "align_handle", "turn_about_z", "handle_zone_count", "HANDLE_MIN_POINTS",
-           "HANDLE_MIN_FRACTION"]
+           "HANDLE_MIN_FRACTION", "HANDLE_MIN_SHARE"]
 
+HANDLE_MIN_SHARE = 0.5           # fit_handle's window share for a handle seen in a partial view (complete clouds: 0.45)
 HANDLE_MIN_POINTS = 4            # observed points inside the handle zone for the handle to count as seen ...
 HANDLE_MIN_FRACTION = 0.01       # ... and at least this fraction of the observed points
 
@@ -37,8 +38,9 @@ class HandleFit:
 
 
 def fit_handle(points: np.ndarray, *, bands: int = 6, bins: int = 36, min_share: float = 0.45,
-               min_mass: float = 0.008) -> HandleFit:
-    """Handle azimuth of an upright cup cloud [N, 3] (see the module docstring)."""
+               min_mass: float = 0.008, centre=None) -> HandleFit:
+    """Handle azimuth of an upright cup cloud [N, 3] (see the module docstring). ``centre``: a first guess (x, y) of
+    the body axis (default: the points' median; a posed partial view passes its origin)."""
     p = np.asarray(points, np.float64)
     if p.ndim != 2 or p.shape[1] != 3 or len(p) < 50:
         raise InvalidPointsError(f"fit_handle needs an [N ≥ 50, 3] cloud, got shape {p.shape}")
@@ -50,10 +52,11 @@ def fit_handle(points: np.ndarray, *, bands: int = 6, bins: int = 36, min_share:
         med = np.array([np.median(r[band == k]) if np.any(band == k) else np.median(r) for k in range(bands)])
         return med[band]
 
-    c = np.median(p[:, :2], axis=0)                                                  # [2] first guess of the axis
-    for _ in range(4):
+    c = np.median(p[:, :2], axis=0) if centre is None else np.asarray(centre, np.float64).reshape(2)
+    for _ in range(4):                                                               # circle fit on the outer wall
         r = np.linalg.norm(p[:, :2] - c, axis=1)                                     # [N]
-        body = r < 1.1 * band_radius(r)
+        rb = band_radius(r)
+        body = (r < 1.1 * rb) & (r > 0.7 * rb)                                       # not the handle, nor the inside
         if body.sum() < 10:
             break
         A = np.c_[2.0 * p[body, :2], np.ones(body.sum())]                            # x² + y² = 2cx·x + 2cy·y + k

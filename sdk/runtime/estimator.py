@@ -15,7 +15,7 @@ import numpy as np
 
 from equipose import preprocess as _crop
 from equipose.core.errors import ConfigError, EquiposeError, InvalidPointsError, ModelFormatError, RegionError
-from equipose.runtime.handle import observe_handle
+from equipose.runtime.handle import finish_handle
 from equipose.runtime.hypotheses import apply_calibration, canonicalise_rotation, parse_symmetry, select_hypothesis
 from equipose.core.metadata import decode_metadata
 from equipose.core.presets import ModelConfig, total_macs
@@ -172,9 +172,8 @@ class PoseEstimator:
             symmetry=self.symmetry, symmetry_axis=None if kind == "none" else R[:, axis].copy(),
             rotation_canonical=canonicalise_rotation(R, self.symmetry), category=self.category,
             random_init=self.random_init)
-        if self.handle is not None:                                             # was the handle seen?
-            res.set_handle(self.handle, *observe_handle(self.handle, prep.model_points, canon @ dR.T + dt, R,
-                                                        t_cat[sel.index]))
+        if self.handle is not None:                                             # azimuth from the observed handle
+            finish_handle(self.handle, res, prep.model_points, t_cat[sel.index], canon @ dR.T + dt)
         return res, _ms(t0)
 
     def predict_points(self, points) -> PoseResult:

@@ -1,26 +1,47 @@
-"""Was the handle seen? The visibility check of models whose pose includes a handle (metadata ``handle``).
+"""The handle stage of models whose pose includes a handle (metadata ``handle``, e.g. ``mug``).
 
-Convention: model units, category frame (the handle along the metadata direction, z up). The observed points are the
-model input moved into the category frame by the chosen pose; the handle zone is ``equipose.core.handles``'.
+The network of such a model fixes the symmetry axis; the azimuth about it comes from the observed points: moved into
+the category frame by the chosen pose, their handle is found by ``equipose.core.handles.fit_handle`` (a body circle
+fit per height band and the 30° window with most points outside it) and the pose is turned about the axis so the
+handle lies along the metadata direction. No handle found → the network's azimuth is kept and the result says the
+handle was not seen (``handle_visible`` False, ``ambiguous`` True).
+
+Convention: model units, category frame (z up = the symmetry axis, the handle along the metadata direction [3]).
 """
 from __future__ import annotations
 
 import numpy as np
 
-from equipose.core.handles import HANDLE_MIN_FRACTION, HANDLE_MIN_POINTS, handle_zone_count
+from equipose.core.handles import (HANDLE_MIN_FRACTION, HANDLE_MIN_POINTS, HANDLE_MIN_SHARE, fit_handle,
+                                   handle_zone_count, turn_about_z)
 
-__all__ = ["observe_handle"]
+__all__ = ["resolve_handle", "finish_handle"]
 
 
-def observe_handle(direction, model_points, canonical_obj, rotation, translation) -> tuple:
-    """(visible, count): whether ≥ max(``HANDLE_MIN_POINTS``, ``HANDLE_MIN_FRACTION``·N) observed points lie in the
-    handle zone of the canonical shape.
+def resolve_handle(direction, model_points, rotation, translation) -> tuple:
+    """(rotation [3, 3], found, fit): the pose turned about its z axis so the observed handle lies along
+    ``direction``.
 
     Convention: ``direction`` [3] category frame; ``model_points`` [N, 3] model input (model units, centred camera
-    frame); ``canonical_obj`` [M, 3] canonical shape in the category frame, model units; ``rotation`` [3, 3] and
-    ``translation`` [3] (model units) the chosen pose, category → centred camera frame.
+    frame); ``rotation`` [3, 3] and ``translation`` [3] (model units) the chosen pose, category → centred camera frame.
     """
-    P = np.asarray(model_points, np.float64)                                  # [N, 3]
-    observed = (P - np.asarray(translation, np.float64)) @ np.asarray(rotation, np.float64)   # [N, 3] category frame
+    R = np.asarray(rotation, np.float64)
+    observed = (np.asarray(model_points, np.float64) - np.asarray(translation, np.float64)) @ R   # [N, 3] category
+    fit = fit_handle(observed, min_share=HANDLE_MIN_SHARE, centre=(0.0, 0.0))
+    if not fit.has_handle:
+        return R, False, fit
+    d = np.asarray(direction, np.float64)
+    return R @ turn_about_z(fit.azimuth - np.arctan2(d[1], d[0])), True, fit
+
+
+def finish_handle(direction, result, model_points, translation, canonical_obj) -> None:
+    """Apply the handle stage to a ``PoseResult`` in place: the resolved full-6D pose (symmetry "none"), and
+    ``handle_visible`` = a handle was found and ≥ max(``HANDLE_MIN_POINTS``, ``HANDLE_MIN_FRACTION``·N) observed
+    points lie in the handle zone of the canonical shape (``canonical_obj`` [M, 3], category frame, model units)."""
+    R, found, _ = resolve_handle(direction, model_points, result.rotation, translation)
+    observed = (np.asarray(model_points, np.float64) - np.asarray(translation, np.float64)) @ R
     count = handle_zone_count(observed, canonical_obj, direction)
-    return bool(count >= max(HANDLE_MIN_POINTS, HANDLE_MIN_FRACTION * len(P))), count
+    result.symmetry = "none"                                                # the handle fixes the azimuth
+    result.set_pose(R, result.translation)
+    result.set_handle(direction, found and count >= max(HANDLE_MIN_POINTS, HANDLE_MIN_FRACTION * len(observed)),
+                      count)

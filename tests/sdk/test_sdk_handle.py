@@ -61,6 +61,24 @@ def test_handle_zone_sees_the_handle_only_where_it_is():
         handle_zone_count(toward, canonical[:10], [1, 0, 0])
 
 
+def test_resolve_handle_turns_the_pose_to_the_seen_handle():
+    from scipy.spatial.transform import Rotation
+    from equipose.runtime.handle import resolve_handle
+    R_true = Rotation.from_euler("xyz", [20, -35, 50], degrees=True).as_matrix()
+    t = np.array([0.01, -0.02, 0.03])
+    mug = synthetic_mug(0.0, n=1500)
+    seen = mug[mug[:, 1] < 0.01]                                                # a partial view, handle in profile
+    pts = seen @ R_true.T + t
+    wrong = R_true @ turn_about_z(np.radians(110.0))                            # axis right, azimuth wrong
+    R, found, fit = resolve_handle([1, 0, 0], pts, wrong, t)
+    assert found
+    err = np.degrees(np.arccos(np.clip((np.trace(R.T @ R_true) - 1) / 2, -1, 1)))
+    assert err < 5.0, err
+    back = mug[mug[:, 0] < -0.02] @ R_true.T + t                                # handle hidden behind the body
+    R2, found2, _ = resolve_handle([1, 0, 0], back, wrong, t)
+    assert not found2 and np.allclose(R2, wrong)
+
+
 def test_handle_metadata_round_trip():
     from equipose.core.metadata import decode_metadata, encode_metadata
     base = dict(category="mug", preset="tiny", model_config={}, num_points=256, num_canonical_points=256, scale=0.16,
