@@ -12,8 +12,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from equipose.core.handles import (HANDLE_MIN_FRACTION, HANDLE_MIN_POINTS, HANDLE_MIN_SHARE, fit_handle,
-                                   handle_zone_count, turn_about_z)
+from equipose.core.handles import (HANDLE_MIN_FRACTION, HANDLE_MIN_MASS, HANDLE_MIN_POINTS, HANDLE_MIN_SHARE,
+                                   fit_handle, handle_zone_count, turn_about_z)
 
 __all__ = ["resolve_handle", "finish_handle"]
 
@@ -27,7 +27,7 @@ def resolve_handle(direction, model_points, rotation, translation) -> tuple:
     """
     R = np.asarray(rotation, np.float64)
     observed = (np.asarray(model_points, np.float64) - np.asarray(translation, np.float64)) @ R   # [N, 3] category
-    fit = fit_handle(observed, min_share=HANDLE_MIN_SHARE, centre=(0.0, 0.0))
+    fit = fit_handle(observed, min_share=HANDLE_MIN_SHARE, min_mass=HANDLE_MIN_MASS, centre=(0.0, 0.0))
     if not fit.has_handle:
         return R, False, fit
     d = np.asarray(direction, np.float64)
