@@ -124,18 +124,19 @@ def adopt_run(name: str, run_dir, *, state_dir=STATE_DIR, overwrite: bool = Fals
     folder.mkdir(parents=True, exist_ok=True)
     cfg = json.loads((run_dir / "config.json").read_text())
     ck = torch.load(run_dir / "latest.pt", map_location="cpu", weights_only=True)
-    partial = cfg["mode"] == "partial"
+    distilled = cfg["mode"] == "partial" and bool(cfg.get("teacher"))   # a student, or self-supervised on partials
     root = cfg.get("data_root") or _default_root()
     cfg.update(out=f"train/state/{name}", data_root="", cache_dir="", steps=int(ck["step"]), minutes=0.0,
-               val_every=1000,
-               teacher=f"train/state/{cfg['category']}-complete/latest.pt" if partial else "")
+               val_every=1000, init="",
+               teacher=f"train/state/{cfg['category']}-complete/latest.pt" if distilled else "")
     shutil.copyfile(run_dir / "latest.pt", folder / "latest.pt")
     _write_json(folder / "config.json", cfg)
     _write_json(folder / "manifest.json", {
-        "name": name, "role": "student" if partial else "teacher", "category": cfg["category"], "mode": cfg["mode"],
+        "name": name, "role": "student" if distilled else ("teacher" if cfg["mode"] == "complete" else "self-supervised"), "category": cfg["category"],
+        "mode": cfg["mode"],
         "preset": cfg["preset"], "steps": int(ck["step"]), "step_counter": int(ck["step"]),
         "data_version": data_version(root, cfg["category"]),
-        "teacher": f"{cfg['category']}-complete" if partial else None,
+        "teacher": f"{cfg['category']}-complete" if distilled else None,
         "command": f"equipose train --out train/state/{name} --resume --steps N",
         "history": [{"date": datetime.date.today().isoformat(), "event": f"adopted from {run_dir.name}",
                      "steps_after": int(ck["step"])}]})
