@@ -132,8 +132,8 @@ def adopt_run(name: str, run_dir, *, state_dir=STATE_DIR, overwrite: bool = Fals
     shutil.copyfile(run_dir / "latest.pt", folder / "latest.pt")
     _write_json(folder / "config.json", cfg)
     _write_json(folder / "manifest.json", {
-        "name": name, "role": "student" if distilled else ("teacher" if cfg["mode"] == "complete" else "self-supervised"), "category": cfg["category"],
-        "mode": cfg["mode"],
+        "name": name, "category": cfg["category"], "mode": cfg["mode"],
+        "role": "student" if distilled else ("teacher" if cfg["mode"] == "complete" else "self-supervised"),
         "preset": cfg["preset"], "steps": int(ck["step"]), "step_counter": int(ck["step"]),
         "data_version": data_version(root, cfg["category"]),
         "teacher": f"{cfg['category']}-complete" if distilled else None,
