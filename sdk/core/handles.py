@@ -23,7 +23,7 @@ from equipose.core.errors import InvalidPointsError
 __all__ = ["HandleFit", "fit_handle", "align_handle", "turn_about_z", "handle_zone_count", "HANDLE_MIN_POINTS",
            "HANDLE_MIN_FRACTION", "HANDLE_MIN_SHARE", "HANDLE_MIN_MASS"]
 
-HANDLE_MIN_MASS = 0.002          # ... and excess per point (a handle in profile on a real depth view is small)
+HANDLE_MIN_MASS = 0.008          # ... and excess per point (lower admits silhouette noise of real depth as handles)
 HANDLE_MIN_SHARE = 0.5           # fit_handle's window share for a handle seen in a partial view (complete clouds: 0.45)
 HANDLE_MIN_POINTS = 4            # observed points inside the handle zone for the handle to count as seen ...
 HANDLE_MIN_FRACTION = 0.01       # ... and at least this fraction of the observed points
