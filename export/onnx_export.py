@@ -115,6 +115,7 @@ def _write_atomic(model_proto, path: pathlib.Path):
 
 
 def export_model(model, path, *, category: str, scale: float, symmetry: str = "none", calibration=None, handle=None,
+                 shape_prior: str | None = None,
                  random_init: bool = False, training: dict | None = None, metrics: dict | None = None,
                  opset: int = DEFAULT_OPSET, verify: bool = True) -> pathlib.Path:
     """Export an ``EquiPoseNet`` to a single self-describing ONNX file and return its path.
@@ -123,7 +124,8 @@ def export_model(model, path, *, category: str, scale: float, symmetry: str = "n
         model: ``equipose.train.EquiPoseNet`` (exported in eval mode; its training flag is restored).
         path: output ``.onnx`` file (parent folders are created; written atomically).
         category, scale (metres per model unit), symmetry, calibration ({"rotation", "translation"} or None),
-        handle ([3] handle direction in the category frame, or None), random_init, training, metrics: written to
+        handle ([3] handle direction in the category frame, or None), shape_prior ("cylinder" or None), random_init,
+            training, metrics: written to
             ``metadata_props`` via ``equipose.core.metadata.encode_metadata``.
         opset: ONNX opset of the default domain.
         verify: run the file once in onnxruntime on the export example and compare with torch (max abs ≤ 1e-4).
@@ -150,7 +152,8 @@ def export_model(model, path, *, category: str, scale: float, symmetry: str = "n
     meta = encode_metadata(category=category, preset=cfg.name, model_config=cfg.to_dict(), num_points=cfg.num_points,
                            num_canonical_points=cfg.num_canonical_points, scale=scale, partial=model.partial,
                            symmetry=symmetry, calibration_rotation=cal_R, calibration_translation=cal_t,
-                           random_init=random_init, training=training, metrics=metrics, handle=handle)
+                           random_init=random_init, training=training, metrics=metrics, handle=handle,
+                           shape_prior=shape_prior)
     path = pathlib.Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
 
@@ -254,6 +257,7 @@ def export_checkpoint(checkpoint, path, *, category: str | None = None, scale: f
     from equipose.train.tabletop import TABLETOP
     spec = TABLETOP.get(category or ckpt.get("category"))                 # e.g. a cup network exported as "mug"
     kwargs.setdefault("handle", (1.0, 0.0, 0.0) if spec is not None and spec.handle else None)
+    kwargs.setdefault("shape_prior", "cylinder" if (category or ckpt.get("category")) == "can" else None)
     return export_model(model, path, category=category or ckpt.get("category", "unknown"),
                         scale=scale if scale is not None else ckpt.get("scale", 1.0),
                         symmetry=ckpt.get("symmetry", "none"), calibration=ckpt.get("calibration"),

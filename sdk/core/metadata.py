@@ -24,7 +24,8 @@ Optional keys (absent in older files): ``precision`` "fp32" | "int8" (weights of
 ``refine_calibration`` JSON {k, iters, rotation 3×3, translation 3, ...}: the calibration for the SDK's ICP
 re-scoring of the k best hypotheses (``equipose calibrate --model M --refine K``); ``handle`` JSON {"direction": 3}:
 the unit handle direction in the category frame, for categories whose pose includes a handle (``mug``: +x); the SDK
-then reports whether the handle was seen (``PoseResult.handle_visible``).
+then reports whether the handle was seen (``PoseResult.handle_visible``); ``shape_prior`` "cylinder": the SDK takes the
+symmetry axis from the observed normals (cans and tins, ``equipose.runtime.cylinder``).
 """
 from __future__ import annotations
 
@@ -47,7 +48,7 @@ REQUIRED_KEYS = ("equipose_format", "equipose_version", "category", "preset", "m
 def encode_metadata(*, category: str, preset: str, model_config: dict, num_points: int, num_canonical_points: int,
                     scale: float, partial: bool, symmetry: str = "none", calibration_rotation=None,
                     calibration_translation=None, random_init: bool = False, training: dict | None = None,
-                    metrics: dict | None = None, handle=None) -> dict:
+                    metrics: dict | None = None, handle=None, shape_prior: str | None = None) -> dict:
     """Build the ``{key: str}`` metadata dict of an equipose model. ``handle``: [3] handle direction (or None)."""
     from equipose import __version__
     R = np.eye(3) if calibration_rotation is None else np.asarray(calibration_rotation, dtype=float)
@@ -71,7 +72,17 @@ def encode_metadata(*, category: str, preset: str, model_config: dict, num_point
         "training": json.dumps(training or {}),
         "metrics": json.dumps(metrics or {}),
         "precision": "fp32",
-    } | ({} if handle is None else {"handle": json.dumps({"direction": _unit_handle(handle, "handle").tolist()})})
+    } | ({} if handle is None else {"handle": json.dumps({"direction": _unit_handle(handle, "handle").tolist()})}) \
+      | ({} if shape_prior is None else {"shape_prior": _check_shape_prior(shape_prior, "shape_prior")})
+
+
+SHAPE_PRIORS = ("cylinder",)
+
+
+def _check_shape_prior(v, source: str) -> str:
+    if v not in SHAPE_PRIORS:
+        raise MetadataError(f"{source}: shape_prior must be one of {', '.join(SHAPE_PRIORS)}, got {v!r}")
+    return v
 
 
 def _unit_handle(v, source: str) -> np.ndarray:
@@ -139,6 +150,7 @@ def decode_metadata(props: dict, source: str = "model") -> dict:
         out["handle"] = _unit_handle(json.loads(props["handle"])["direction"], source) if props.get("handle") else None
     except (ValueError, KeyError, TypeError) as e:
         raise MetadataError(f"{source}: malformed handle metadata ({e}); re-export the model") from None
+    out["shape_prior"] = _check_shape_prior(props["shape_prior"], source) if props.get("shape_prior") else None
     _check_symmetry(out["symmetry"])
     if not (math.isfinite(out["scale"]) and out["scale"] > 0):
         raise MetadataError(f"{source}: scale must be positive, got {out['scale']}")

@@ -22,8 +22,8 @@ DEMO_MODEL = "cup-tabletop.onnx"
 # tag (file stem without precision) → architecture preset; the preset's configuration equals the file's model_config
 WEIGHTS = {tag: "edge" for tag in (
     "airplane-complete", "airplane-partial", "bottle-complete", "bottle-partial", "bowl-tabletop", "can-tabletop",
-    "car-complete", "car-partial", "chair-complete", "chair-partial", "cup-tabletop", "mug-tabletop", "sofa-complete",
-    "sofa-partial")}
+    "car-complete", "car-partial", "chair-complete", "chair-partial", "cup-tabletop", "laptop-partial", "mug-tabletop",
+    "sofa-complete", "sofa-partial")}
 
 
 def demo_model_path() -> pathlib.Path:

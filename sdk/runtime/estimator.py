@@ -15,7 +15,7 @@ import numpy as np
 
 from equipose import preprocess as _crop
 from equipose.core.errors import ConfigError, EquiposeError, InvalidPointsError, ModelFormatError, RegionError
-from equipose.runtime.handle import finish_handle
+from equipose.runtime.stages import apply_stages
 from equipose.runtime.hypotheses import apply_calibration, canonicalise_rotation, parse_symmetry, select_hypothesis
 from equipose.core.metadata import decode_metadata
 from equipose.core.presets import ModelConfig, total_macs
@@ -80,7 +80,7 @@ class PoseEstimator:
         self.symmetry = str(self.metadata["symmetry"])
         parse_symmetry(self.symmetry)                                           # unsupported spec → MetadataError
         self.random_init = bool(self.metadata["random_init"])
-        self.handle = self.metadata.get("handle")                               # [3] category frame, or None
+        self.handle = self.metadata.get("handle")                               # [3] category frame, or None (stages)
         self.calibration_rotation = np.asarray(self.metadata["calibration_rotation"], np.float64)     # [3, 3]
         self.calibration_translation = np.asarray(self.metadata["calibration_translation"], np.float64)  # [3]
         rcal = self.metadata["refine_calibration"]                              # None, or parsed and checked
@@ -172,8 +172,7 @@ class PoseEstimator:
             symmetry=self.symmetry, symmetry_axis=None if kind == "none" else R[:, axis].copy(),
             rotation_canonical=canonicalise_rotation(R, self.symmetry), category=self.category,
             random_init=self.random_init)
-        if self.handle is not None:                                             # azimuth from the observed handle
-            finish_handle(self.handle, res, prep.model_points, t_cat[sel.index], canon @ dR.T + dt)
+        apply_stages(self.metadata, res, prep.model_points, t_cat[sel.index], canon @ dR.T + dt)  # handle, cylinder
         return res, _ms(t0)
 
     def predict_points(self, points) -> PoseResult:

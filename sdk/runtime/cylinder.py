@@ -1,0 +1,69 @@
+"""The cylinder stage of models whose category is a cylinder (metadata ``shape_prior`` "cylinder": cans, tins, tubes).
+
+A network trained on cans tends to put the axis along the longest extent, so squat tins (height < diameter) come out
+lying. On a cylinder every surface normal is either perpendicular to the axis (the side) or parallel to it (the lids);
+the stage scores axes by how well the normals follow that pattern — cost = mean over points of min((n·a)², 1 − (n·a)²)
+— and replaces the network's axis by a principal direction of the normals far from it when that one fits clearly
+better, turning the pose onto it.
+
+Convention: ``model_points`` [N, 3] model units, centred camera frame (rotation-free, so any frame works); normals from
+the ``k`` nearest neighbours (PCA). Axes are unit [3] vectors; the axis sign is kept from the network's.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["point_normals", "cylinder_axis", "finish_cylinder"]
+
+
+def point_normals(points, k: int = 12) -> np.ndarray:
+    """[N, 3] unit normals (smallest principal direction of each point's k neighbours; sign arbitrary)."""
+    from scipy.spatial import cKDTree
+    P = np.asarray(points, np.float64)
+    _, idx = cKDTree(P).query(P, min(k, len(P)))                             # [N, k]
+    Q = P[idx] - P[idx].mean(1, keepdims=True)                               # [N, k, 3]
+    _, vecs = np.linalg.eigh(np.einsum("nki,nkj->nij", Q, Q))                # ascending eigenvalues
+    return vecs[:, :, 0]
+
+
+def _cost(normals, axis) -> float:
+    c2 = (normals @ axis) ** 2
+    return float(np.mean(np.minimum(c2, 1.0 - c2)))
+
+
+SWITCH_ANGLE_DEG = 45.0     # only an axis this far from the network's can replace it (the network's is more precise)
+SWITCH_RATIO = 0.85         # ... and only when its cost is below this fraction of the network axis' cost
+
+
+def cylinder_axis(points, axis0, k: int = 12) -> tuple:
+    """(axis [3], cost of ``axis0``, cost of the chosen axis) for the points of one cylinder-like object: the network's
+    ``axis0`` unless a principal direction of the normals ≥ ``SWITCH_ANGLE_DEG`` away fits the cylinder pattern
+    clearly better (cost < ``SWITCH_RATIO`` × cost of ``axis0``): the lying / upright confusion of squat tins."""
+    n = point_normals(points, k)
+    a0 = np.asarray(axis0, np.float64) / np.linalg.norm(axis0)
+    _, vecs = np.linalg.eigh(n.T @ n)                                        # principal directions of the normals
+    far = [v for v in vecs.T if abs(float(v @ a0)) < np.cos(np.radians(SWITCH_ANGLE_DEG))]
+    c0 = _cost(n, a0)
+    if not far:
+        return a0, c0, c0
+    costs = [_cost(n, v) for v in far]
+    best = far[int(np.argmin(costs))]
+    if min(costs) >= SWITCH_RATIO * c0:
+        return a0, c0, c0
+    return (best if best @ a0 >= 0 else -best), c0, min(costs)
+
+
+def _turn(a, b) -> np.ndarray:
+    """[3, 3] smallest rotation taking unit ``a`` to unit ``b``."""
+    v, c = np.cross(a, b), float(a @ b)
+    if np.linalg.norm(v) < 1e-12:
+        return np.eye(3)
+    V = np.array([[0, -v[2], v[1]], [v[2], 0, -v[0]], [-v[1], v[0], 0]])
+    return np.eye(3) + V + V @ V / (1.0 + c)
+
+
+def finish_cylinder(result, model_points, axis_index: int = 2) -> None:
+    """Turn a ``PoseResult`` in place so its symmetry axis (column ``axis_index``) is the cylinder stage's axis."""
+    a0 = result.rotation[:, axis_index]
+    a, _, _ = cylinder_axis(model_points, a0)
+    result.set_pose(_turn(a0, a) @ result.rotation, result.translation)

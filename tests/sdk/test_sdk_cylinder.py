@@ -1,0 +1,81 @@
+"""Cylinder stage: a squat tin's axis from its normals; metadata ``shape_prior``."""
+import numpy as np
+import pytest
+
+from equipose.core.errors import MetadataError
+from equipose.runtime.cylinder import cylinder_axis, finish_cylinder, point_normals
+
+
+def closed_cylinder(radius, height, n=1500, seed=0):
+    """[P, 3] points on the side and both lids of a z-axis cylinder (centred)."""
+    rng = np.random.default_rng(seed)
+    side_n = int(n * height / (height + radius))
+    a = rng.uniform(0, 2 * np.pi, side_n)
+    side = np.c_[radius * np.cos(a), radius * np.sin(a), rng.uniform(-height / 2, height / 2, side_n)]
+    lid_n = (n - side_n) // 2
+    rr, aa = radius * np.sqrt(rng.uniform(0, 1, 2 * lid_n)), rng.uniform(0, 2 * np.pi, 2 * lid_n)
+    lids = np.c_[rr * np.cos(aa), rr * np.sin(aa), np.repeat([height / 2, -height / 2], lid_n)]
+    return np.vstack([side, lids])
+
+
+def view(points, R, toward=(0.0, 0.0, -1.0)):
+    """Posed by ``R``, the half facing a camera looking along +z (points with a smaller z than the centre)."""
+    P = points @ R.T
+    return P[P @ np.asarray(toward) > -0.2 * np.abs(P).max()]
+
+
+def test_normals_of_a_plane():
+    rng = np.random.default_rng(0)
+    P = np.c_[rng.uniform(-1, 1, (200, 2)), np.zeros(200)]
+    assert np.allclose(np.abs(point_normals(P)[:, 2]), 1.0, atol=1e-6)
+
+
+@pytest.mark.parametrize("tilt", [20.0, 60.0])
+def test_squat_tin_lying_axis_is_turned_upright(tilt):
+    from scipy.spatial.transform import Rotation
+    R = Rotation.from_euler("x", tilt, degrees=True).as_matrix()
+    P = view(closed_cylinder(0.05, 0.04), R)                                    # h/d = 0.4: a squat tin
+    truth = R[:, 2]
+    wrong = R[:, 0]                                                             # the "lying" answer (longest extent)
+    axis, c0, c = cylinder_axis(P, wrong)
+    assert c < c0
+    assert np.degrees(np.arccos(min(1.0, abs(axis @ truth)))) < 10.0
+
+
+def test_a_right_axis_is_kept():
+    from scipy.spatial.transform import Rotation
+    R = Rotation.from_euler("xy", [35.0, -20.0], degrees=True).as_matrix()
+    P = view(closed_cylinder(0.03, 0.15), R)                                    # a tall can
+    near = Rotation.from_rotvec([0.03, 0.0, 0.0]).as_matrix() @ R[:, 2]         # the network: 1.7° off
+    axis, c0, c = cylinder_axis(P, near)
+    assert np.allclose(axis, near / np.linalg.norm(near))                       # kept as is (more precise)
+
+
+def test_finish_cylinder_turns_the_pose():
+    from types import SimpleNamespace
+    from scipy.spatial.transform import Rotation
+    R = Rotation.from_euler("x", 30.0, degrees=True).as_matrix()
+    P = view(closed_cylinder(0.05, 0.04), R)
+    lying = R @ Rotation.from_euler("y", 90.0, degrees=True).as_matrix()        # axis in the tin's plane
+    res = SimpleNamespace(rotation=lying, translation=np.zeros(3))
+    res.set_pose = lambda Rn, t: (setattr(res, "rotation", Rn), setattr(res, "translation", t))
+    finish_cylinder(res, P)
+    assert np.degrees(np.arccos(min(1.0, abs(res.rotation[:, 2] @ R[:, 2])))) < 10.0
+    assert np.allclose(res.rotation @ res.rotation.T, np.eye(3), atol=1e-9) and np.linalg.det(res.rotation) > 0
+
+
+def test_shape_prior_metadata():
+    from equipose.core.metadata import decode_metadata, encode_metadata
+    base = dict(category="can", preset="tiny", model_config={}, num_points=256, num_canonical_points=256, scale=0.25,
+                partial=True, symmetry="continuous:z")
+    assert decode_metadata(encode_metadata(**base, shape_prior="cylinder"))["shape_prior"] == "cylinder"
+    assert decode_metadata(encode_metadata(**base))["shape_prior"] is None
+    with pytest.raises(MetadataError):
+        encode_metadata(**base, shape_prior="sphere")
+    with pytest.raises(MetadataError):
+        decode_metadata(dict(encode_metadata(**base), shape_prior="cone"))
+
+
+def test_shipped_can_model_uses_the_stage():
+    from equipose import PoseEstimator
+    assert PoseEstimator("can-tabletop").metadata["shape_prior"] == "cylinder"
