@@ -178,7 +178,9 @@ def calibrate_onnx_refined(model_path, canonical_points: np.ndarray, k: int = 5,
         raise ConfigError(f"canonical_points must be [K, N, 3], got {pts.shape}")
     est = PoseEstimator(model_path, threads=1, refine=int(k), refine_iters=int(iters))
     est.calibration_rotation, est.calibration_translation = np.eye(3), np.zeros(3)     # raw, learned-frame poses
-    res = est.predict_points_batch([p * est.scale for p in pts])                      # metres, object at the origin
+    est.metadata = {**est.metadata, "handle": None, "shape_prior": None}               # stages need the category frame
+    res = [r for i in range(0, len(pts), 32)                                          # batches of 32: bounded memory
+           for r in est.predict_points_batch([p * est.scale for p in pts[i:i + 32]])]  # metres, object at the origin
     dR = np.stack([r.rotation for r in res])                                          # [K, 3, 3]
     dt = np.stack([r.translation for r in res]) / est.scale                           # [K, 3] model units
     cal = calibrate_offsets(dR, dt, symmetry=est.symmetry, unsigned_axis=unsigned_axis, seed=seed)

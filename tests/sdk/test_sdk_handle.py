@@ -114,3 +114,17 @@ def test_estimator_reports_the_handle(tiny_model, tmp_path):
     assert img.shape == (480, 640, 3)
     plain = PoseEstimator(tiny_model, threads=1).predict_points(mug)
     assert plain.handle_visible is None and "handle_visible" not in plain.to_dict()
+
+
+def test_refine_calibration_ignores_the_stages(tiny_model, tmp_path):
+    """The ICP re-scoring calibration works in the learned frame: the handle / cylinder stages must not touch it."""
+    pytest.importorskip("onnx")
+    from equipose.export.onnx_export import update_metadata
+    from equipose.train.calibration import calibrate_onnx_refined
+    staged = tmp_path / "staged.onnx"
+    shutil.copy(tiny_model, staged)
+    update_metadata(staged, handle={"direction": [1.0, 0.0, 0.0]}, shape_prior="cylinder")
+    pts = np.stack([synthetic_mug(a, n=600, seed=k)[:, [0, 1, 2]] / 0.25 for k, a in enumerate((0, 50, 100, 150))])
+    a = calibrate_onnx_refined(tiny_model, pts, k=2, iters=2)
+    b = calibrate_onnx_refined(staged, pts, k=2, iters=2)
+    assert np.allclose(a["rotation"], b["rotation"]) and np.allclose(a["translation"], b["translation"])
