@@ -12,6 +12,7 @@ partial-view model is a *student* distilled from ``<category>-complete`` in the 
 Commands (``python -m equipose.train.long_runs ...``):
     seed NAME ...            recover the shipped ONNX networks into resumable checkpoints (``train/onnx_weights.py``)
     run --lane A,B,C --minutes M [--slice S]
+    slice NAME --minutes M
                              resume each named model for S minutes in turn until M minutes are spent (one process
                              per core: torch uses 1 thread)
     adopt NAME RUN_DIR       start tracking a model trained with ``equipose train --out RUN_DIR``
@@ -206,10 +207,12 @@ def main(argv=None) -> int:
     r = sub.add_parser("run"); r.add_argument("--lane", required=True); r.add_argument("--minutes", type=float, required=True)
     r.add_argument("--slice", type=float, default=20.0)
     r.add_argument("--cache-dir", help="render cache folder (default: data_cache/ beside the package)")
+    o = sub.add_parser("slice", help="one slice of one model (e.g. on a lent GPU)"); o.add_argument("name")
+    o.add_argument("--minutes", type=float, required=True); o.add_argument("--cache-dir")
     a = sub.add_parser("adopt"); a.add_argument("name"); a.add_argument("run_dir")
     a.add_argument("--overwrite", action="store_true")
     sub.add_parser("show")
-    for p in (s, r, a, ap):
+    for p in (s, r, o, a, ap):
         p.add_argument("--state-dir", default=str(STATE_DIR)) if p is not ap else None
     args = ap.parse_args(argv)
     state = pathlib.Path(getattr(args, "state_dir", STATE_DIR))
@@ -218,6 +221,8 @@ def main(argv=None) -> int:
             print(n, "->", seed_model(n, state_dir=state, overwrite=args.overwrite))
     elif args.cmd == "adopt":
         print(args.name, "->", adopt_run(args.name, args.run_dir, state_dir=state, overwrite=args.overwrite))
+    elif args.cmd == "slice":
+        print(args.name, run_slice(args.name, args.minutes, state_dir=state, cache_dir=args.cache_dir))
     elif args.cmd == "run":
         run_lane([n.strip() for n in args.lane.split(",") if n.strip()], args.minutes, args.slice, state_dir=state,
                  cache_dir=args.cache_dir)
