@@ -41,7 +41,7 @@ def load_mask(path) -> "np.ndarray":
 
 
 def add_arguments(p):
-    p.add_argument("--model", "-m", help="equipose .onnx model (default: the bundled random-weight demo model)")
+    p.add_argument("--model", "-m", help="equipose .onnx model or a shipped model name (default: the bundled demo model, cup-tabletop)")
     p.add_argument("--source", "-s", required=True,
                    help="PNG folder (with intrinsics.json), .mcap recording, .pcd file/folder, or 'oak'")
     g = p.add_mutually_exclusive_group(required=True)
