@@ -6,7 +6,8 @@ Convention:
     about the z axis through the origin so that the handle's azimuth, seen from the fitted body axis, is 0 (+x).
     Nothing is translated: the origin stays the file's.
 
-How: the body axis is a circle fit (algebraic, refit on the points inside 1.1× the per-height median radius); each
+How: the body axis is a circle fit (algebraic, refit on the outer wall: points at 0.7–1.1× the per-height median
+radius); each
 point's excess radius over its height band's median, above 15 %, is binned by azimuth; the handle is the 30° window
 with most excess. A cup "has a handle" when that window holds ≥ ``min_share`` of all the excess and the excess is
 ≥ ``min_mass`` per point — on the 99 ModelNet40 cups this keeps the clearly handled ones (checked by eye on a
@@ -23,10 +24,20 @@ from equipose.core.errors import InvalidPointsError
 __all__ = ["HandleFit", "fit_handle", "align_handle", "turn_about_z", "handle_zone_count", "HANDLE_MIN_POINTS",
            "HANDLE_MIN_FRACTION", "HANDLE_MIN_SHARE", "HANDLE_MIN_MASS"]
 
-HANDLE_MIN_MASS = 0.008          # ... and excess per point (lower admits silhouette noise of real depth as handles)
 HANDLE_MIN_SHARE = 0.5           # fit_handle's window share for a handle seen in a partial view (complete clouds: 0.45)
+HANDLE_MIN_MASS = 0.008          # ... and excess per point (lower admits silhouette noise of real depth as handles)
 HANDLE_MIN_POINTS = 4            # observed points inside the handle zone for the handle to count as seen ...
 HANDLE_MIN_FRACTION = 0.01       # ... and at least this fraction of the observed points
+
+
+def _height_bands(z: np.ndarray, bands: int) -> np.ndarray:
+    """[bands + 1] edges of equal-count height bands of ``z``."""
+    return np.quantile(z, np.linspace(0.0, 1.0, bands + 1))
+
+
+def _band_of(z: np.ndarray, edges: np.ndarray) -> np.ndarray:
+    """[N] index of the height band of each ``z`` (values outside the edges go to the end bands)."""
+    return np.clip(np.searchsorted(edges, z) - 1, 0, len(edges) - 2)
 
 
 @dataclass(frozen=True)
@@ -45,9 +56,7 @@ def fit_handle(points: np.ndarray, *, bands: int = 6, bins: int = 36, min_share:
     p = np.asarray(points, np.float64)
     if p.ndim != 2 or p.shape[1] != 3 or len(p) < 50:
         raise InvalidPointsError(f"fit_handle needs an [N ≥ 50, 3] cloud, got shape {p.shape}")
-    z = p[:, 2]
-    edges = np.quantile(z, np.linspace(0.0, 1.0, bands + 1))
-    band = np.clip(np.searchsorted(edges, z) - 1, 0, bands - 1)                     # [N] height band
+    band = _band_of(p[:, 2], _height_bands(p[:, 2], bands))                         # [N] height band
 
     def band_radius(r):                                                              # [N] median radius of its band
         med = np.array([np.median(r[band == k]) if np.any(band == k) else np.median(r) for k in range(bands)])
@@ -112,16 +121,15 @@ def handle_zone_count(observed_obj: np.ndarray, canonical_obj: np.ndarray, direc
     obs, can = obs @ turn.T, can @ turn.T
     fit = fit_handle(can)
     c = np.asarray(fit.centre)
-    zc = can[:, 2]
-    edges = np.quantile(zc, np.linspace(0.0, 1.0, 7))
+    edges = _height_bands(can[:, 2], 6)
     vc = can[:, :2] - c
     rc = np.linalg.norm(vc, axis=1)
     off = np.degrees(np.abs(np.arctan2(vc[:, 1], vc[:, 0]))) > 40.0                # canonical points away from the handle
-    band_c = np.clip(np.searchsorted(edges, zc) - 1, 0, 5)
+    band_c = _band_of(can[:, 2], edges)
     sel = [off & (band_c == k) for k in range(6)]
     body = np.array([np.percentile(rc[m], 90) if m.sum() >= 3 else np.percentile(rc[off], 90) for m in sel])
     inside_h = (obs[:, 2] >= edges[0]) & (obs[:, 2] <= edges[-1])
-    band_o = np.clip(np.searchsorted(edges, obs[:, 2]) - 1, 0, 5)
+    band_o = _band_of(obs[:, 2], edges)
     v = obs[:, :2] - c
     r = np.linalg.norm(v, axis=1)
     az = np.degrees(np.abs(np.arctan2(v[:, 1], v[:, 0])))

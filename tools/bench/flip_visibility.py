@@ -13,13 +13,13 @@ Not shipped.
 import numpy as np, sys
 from scipy.spatial import cKDTree
 from equipose import PoseEstimator
+from equipose.core.geometry import rotation_angle_deg as ang
 from equipose.train.evaluate import test_dataset
 from equipose.core.handles import turn_about_z  # rotation about +z
 name, cat, N = sys.argv[1], sys.argv[2], int(sys.argv[3])
 ds = test_dataset("/work/shared/data", cat, "partial", 256, cache_dir="/work/main/data_cache")
 S = [ds.raw(i) for i in np.linspace(0, len(ds) - 1, N).round().astype(int)]
 est = PoseEstimator(name, threads=1)
-def ang(A, B): return np.degrees(np.arccos(np.clip((np.trace(A.T @ B) - 1) / 2, -1, 1)))
 def visible(X, cell=0.03):
     """indices of X [M,3] (camera frame, metres) nearest the camera per angular cell."""
     u = np.floor(X[:, 0] / X[:, 2] / cell).astype(int); v = np.floor(X[:, 1] / X[:, 2] / cell).astype(int)

@@ -19,6 +19,7 @@ from scipy.spatial.transform import Rotation
 
 from equipose import PoseEstimator
 from equipose.core import icosahedral
+from equipose.core.geometry import rotation_angle_deg
 from equipose.runtime.refine import icp_multi
 
 DATA = pathlib.Path(__file__).resolve().parents[3] / "shared" / "data" / "ycb_posecnn" / "models"
@@ -42,7 +43,7 @@ def observe(q: np.ndarray, rng) -> tuple:
 
 
 def rot_err(Ra, Rb) -> float:
-    return float(np.degrees(np.arccos(np.clip((np.trace(Ra.T @ Rb) - 1) / 2, -1, 1))))
+    return float(rotation_angle_deg(Ra, Rb))
 
 
 def icp60(obs: np.ndarray, q: np.ndarray, iters: int = 20) -> tuple:

@@ -42,6 +42,7 @@ def main(argv=None) -> int:
     ap.add_argument("--no-stages", action="store_true", help="drop the files' shape_prior stage")
     args = ap.parse_args(argv)
     from equipose import PoseEstimator
+    from equipose.core.geometry import axis_angle_deg
     views = render_cylinders(args.count, args.views, args.seed)
     hd = np.array([v[2] for v in views])
     print(f"{len(views)} views of {args.count} cylinders ({np.mean(hd < 1):.0%} squat, h/d < 1)")
@@ -53,8 +54,7 @@ def main(argv=None) -> int:
         err = []
         for p, R, _ in views:
             res = est.predict_points(p)
-            c = abs(float(res.rotation[:, 2] @ R[:, 2]))
-            err.append(np.degrees(np.arccos(min(1.0, c))))
+            err.append(float(axis_angle_deg(res.rotation[:, 2], R[:, 2], unsigned=True)))
         err = np.array(err)
         label = name + (" (no stages)" if args.no_stages else "")
         for sub, m in (("all", np.ones_like(hd, bool)), ("squat", hd < 1), ("tall", hd >= 1)):
