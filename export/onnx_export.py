@@ -125,8 +125,7 @@ def export_model(model, path, *, category: str, scale: float, symmetry: str = "n
         path: output ``.onnx`` file (parent folders are created; written atomically).
         category, scale (metres per model unit), symmetry, calibration ({"rotation", "translation"} or None),
         handle ([3] handle direction in the category frame, or None), shape_prior ("cylinder" or None), random_init,
-            training, metrics: written to
-            ``metadata_props`` via ``equipose.core.metadata.encode_metadata``.
+            training, metrics: written to ``metadata_props`` via ``equipose.core.metadata.encode_metadata``.
         opset: ONNX opset of the default domain.
         verify: run the file once in onnxruntime on the export example and compare with torch (max abs ≤ 1e-4).
     Raises:
@@ -255,10 +254,11 @@ def export_checkpoint(checkpoint, path, *, category: str | None = None, scale: f
     if scale is not None and scale != ckpt.get("scale"):
         training["trained_scale"] = ckpt.get("scale")
     from equipose.train.tabletop import TABLETOP
-    spec = TABLETOP.get(category or ckpt.get("category"))                 # e.g. a cup network exported as "mug"
+    category = category or ckpt.get("category", "unknown")               # e.g. a cup network exported as "mug"
+    spec = TABLETOP.get(category)
     kwargs.setdefault("handle", (1.0, 0.0, 0.0) if spec is not None and spec.handle else None)
-    kwargs.setdefault("shape_prior", "cylinder" if (category or ckpt.get("category")) == "can" else None)
-    return export_model(model, path, category=category or ckpt.get("category", "unknown"),
+    kwargs.setdefault("shape_prior", "cylinder" if category == "can" else None)
+    return export_model(model, path, category=category,
                         scale=scale if scale is not None else ckpt.get("scale", 1.0),
                         symmetry=ckpt.get("symmetry", "none"), calibration=ckpt.get("calibration"),
                         random_init=False, training=training, metrics=ckpt.get("metrics") or {}, **kwargs)

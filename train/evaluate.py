@@ -69,16 +69,18 @@ def predict_checkpoint(model, ckpt: dict, samples: list, batch_size: int = 16) -
     return R, t_m
 
 
-def predict_onnx(model_path, samples: list, batch_size: int = 16, refine="auto") -> tuple:
-    """The exported model through ``equipose.PoseEstimator`` (what users run; ``refine``: its ICP re-scoring of
-    the k best hypotheses). Returns (R, t metres, estimator, handle seen [S] bool or None for models without one)."""
+def predict_onnx(model, samples: list, batch_size: int = 16, refine="auto") -> tuple:
+    """The exported model through ``equipose.PoseEstimator`` (what users run; ``model``: a path, or an estimator that
+    is used as it is; ``refine``: its ICP re-scoring of the k best hypotheses). Returns (R, t metres, estimator,
+    handle seen [S] bool or None for models without one, the results' symmetry — "none" once a handle stage made the
+    pose full 6D)."""
     from equipose.runtime.estimator import PoseEstimator
-    est = PoseEstimator(model_path, refine=refine)
-    Rs, ts, seen = [], [], []
+    est = model if isinstance(model, PoseEstimator) else PoseEstimator(model, refine=refine)
+    Rs, ts, seen, sym = [], [], [], est.symmetry
     for i in range(0, len(samples), batch_size):
         for r in est.predict_points_batch([s["points_m"] for s in samples[i:i + batch_size]]):
-            Rs.append(r.rotation); ts.append(r.translation); seen.append(r.handle_visible)
-    return np.stack(Rs), np.stack(ts), est, None if est.handle is None else np.array(seen, bool)
+            Rs.append(r.rotation); ts.append(r.translation); seen.append(r.handle_visible); sym = r.symmetry
+    return np.stack(Rs), np.stack(ts), est, None if est.handle is None else np.array(seen, bool), sym
 
 
 def run_icp(samples: list, templates: list, bidirectional: bool, obs_points: int = 256, iters: int = 20,
@@ -159,9 +161,8 @@ def evaluate(*, category: str, mode: str, checkpoint=None, model_path=None, data
             log("warning: checkpoint has no calibration (identity); run 'equipose calibrate' first")
     else:
         from equipose.runtime.estimator import PoseEstimator
-        est = PoseEstimator(model_path)
+        est = PoseEstimator(model_path, refine="auto" if refine is None else refine)
         num_points, symmetry, scale = est.num_points, est.symmetry, est.scale
-        symmetry = "none" if est.handle is not None else symmetry   # the handle stage makes the pose full 6D
     unsigned = category == "can"
     ds = test_dataset(root, category, mode, num_points, limit=limit, cache_dir=cache_dir)
     samples = [ds.raw(i) for i in range(len(ds))]
@@ -175,7 +176,7 @@ def evaluate(*, category: str, mode: str, checkpoint=None, model_path=None, data
     if checkpoint is not None:
         R, t = predict_checkpoint(model, ckpt, samples)
     else:
-        R, t, est, seen = predict_onnx(model_path, samples, refine="auto" if refine is None else refine)
+        R, t, est, seen, symmetry = predict_onnx(est, samples)   # symmetry: the results' (handle stage: "none")
         refine = est.refine
     ours_s = time.perf_counter() - t0
     row, r_err, t_err = _row("equipose" + (f"+icp{refine}" if refine else ""), R, t, samples, symmetry, unsigned)

@@ -63,6 +63,13 @@ def draw_mask(image, mask, color=(255, 0, 255), alpha: float = 0.35) -> np.ndarr
     return img
 
 
+def _outlined_text(img, text: str, org, color) -> None:
+    """``text`` at pixel ``org`` in ``color`` with a black outline (readable on any background)."""
+    import cv2
+    cv2.putText(img, text, org, cv2.FONT_HERSHEY_SIMPLEX, 0.45, (0, 0, 0), 3, cv2.LINE_AA)
+    cv2.putText(img, text, org, cv2.FONT_HERSHEY_SIMPLEX, 0.45, color, 1, cv2.LINE_AA)
+
+
 def draw_pose(image, K, result, *, axis_length: float | None = None, color=(0, 255, 0), thickness: int = 2,
               label: bool = True) -> np.ndarray:
     """Axes (x red, y green, z blue) + oriented 3D box of a ``PoseResult`` on a copy of ``image``; for a model with a
@@ -92,17 +99,12 @@ def draw_pose(image, K, result, *, axis_length: float | None = None, color=(0, 2
         if f_tip[0]:
             col = (0, 215, 255) if result.handle_visible else (160, 160, 160)
             cv2.arrowedLine(img, ipt(uv_axes[0]), ipt(tip[0]), col, thickness + 1, cv2.LINE_AA, tipLength=0.15)
-            name = "handle" if result.handle_visible else "handle?"
-            cv2.putText(img, name, ipt(tip[0] + np.array([4, 4])), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (0, 0, 0), 3,
-                        cv2.LINE_AA)
-            cv2.putText(img, name, ipt(tip[0] + np.array([4, 4])), cv2.FONT_HERSHEY_SIMPLEX, 0.45, col, 1, cv2.LINE_AA)
+            _outlined_text(img, "handle" if result.handle_visible else "handle?", ipt(tip[0] + np.array([4, 4])), col)
     if label and f_axes[0]:
-        flag = " ?flip" if result.ambiguous and getattr(result, "handle_visible", None) is not False else ""
-        flag += " handle hidden" if getattr(result, "handle_visible", None) is False else ""
+        hidden = getattr(result, "handle_visible", None) is False               # (that also sets ambiguous)
+        flag = " handle hidden" if hidden else (" ?flip" if result.ambiguous else "")
         txt = f"{result.category or 'obj'} c={result.confidence:.2f}" + flag
         if result.object_id is not None:
             txt = f"#{result.object_id} " + txt
-        org = ipt(uv_axes[0] + np.array([6, -6]))
-        cv2.putText(img, txt, org, cv2.FONT_HERSHEY_SIMPLEX, 0.45, (0, 0, 0), 3, cv2.LINE_AA)
-        cv2.putText(img, txt, org, cv2.FONT_HERSHEY_SIMPLEX, 0.45, (255, 255, 255), 1, cv2.LINE_AA)
+        _outlined_text(img, txt, ipt(uv_axes[0] + np.array([6, -6])), (255, 255, 255))
     return img
