@@ -69,16 +69,19 @@ def predict_checkpoint(model, ckpt: dict, samples: list, batch_size: int = 16) -
     return R, t_m
 
 
-def predict_onnx(model, samples: list, batch_size: int = 16, refine="auto") -> tuple:
+def predict_onnx(model, samples: list, batch_size: int = 16, refine="auto", up: str | None = None) -> tuple:
     """The exported model through ``equipose.PoseEstimator`` (what users run; ``model``: a path, or an estimator that
     is used as it is; ``refine``: its ICP re-scoring of the k best hypotheses). Returns (R, t metres, estimator,
     handle seen [S] bool or None for models without one, the results' symmetry — "none" once a handle stage made the
-    pose full 6D)."""
+    pose full 6D). ``up="gt"``: the up prior with each sample's true up axis (what a level IMU or the table plane
+    gives a user; ``equipose.runtime.upright``)."""
     from equipose.runtime.estimator import PoseEstimator
     est = model if isinstance(model, PoseEstimator) else PoseEstimator(model, refine=refine)
     Rs, ts, seen, sym = [], [], [], est.symmetry
     for i in range(0, len(samples), batch_size):
-        for r in est.predict_points_batch([s["points_m"] for s in samples[i:i + batch_size]]):
+        chunk = samples[i:i + batch_size]
+        ups = None if up is None else [s["rotation"][:, 2] for s in chunk]
+        for r in est.predict_points_batch([s["points_m"] for s in chunk], up=ups):
             Rs.append(r.rotation); ts.append(r.translation); seen.append(r.handle_visible); sym = r.symmetry
     return np.stack(Rs), np.stack(ts), est, None if est.handle is None else np.array(seen, bool), sym
 
@@ -141,12 +144,14 @@ def _row(method, R, t, samples, symmetry, unsigned):
 
 def evaluate(*, category: str, mode: str, checkpoint=None, model_path=None, data_root=None, limit: int | None = None,
              icp_templates: int = 3, icp_points: int = 256, icp_iters: int = 20, template_points: int = 512,
-             icp_samples: int | None = None, refine=None, exclude=(),
+             icp_samples: int | None = None, refine=None, exclude=(), up: str | None = None,
              seed: int = 0, cache_dir=None, progress: bool = True, log=print) -> dict:
     """Run both methods on one test set; returns the result dict (JSON layout above) plus ``_errors`` arrays."""
     root = data_root or default_data_root()
     if (checkpoint is None) == (model_path is None):
         raise ConfigError("give exactly one of --checkpoint or --model")
+    if up not in (None, "gt") or (up and checkpoint is not None):
+        raise ConfigError(f"--up takes 'gt' (the true up axis as the up prior) and needs --model, got {up!r}")
     if refine is not None and checkpoint is not None:
         raise ConfigError("--refine applies to an exported model (--model), the SDK's re-scoring")
     if checkpoint is not None:
@@ -176,10 +181,11 @@ def evaluate(*, category: str, mode: str, checkpoint=None, model_path=None, data
     if checkpoint is not None:
         R, t = predict_checkpoint(model, ckpt, samples)
     else:
-        R, t, est, seen, symmetry = predict_onnx(est, samples)   # symmetry: the results' (handle stage: "none")
+        R, t, est, seen, symmetry = predict_onnx(est, samples, up=up)  # symmetry: the results' (handle: "none")
         refine = est.refine
     ours_s = time.perf_counter() - t0
-    row, r_err, t_err = _row("equipose" + (f"+icp{refine}" if refine else ""), R, t, samples, symmetry, unsigned)
+    name = "equipose" + ("+up(gt)" if up else f"+icp{refine}" if refine else "")
+    row, r_err, t_err = _row(name, R, t, samples, symmetry, unsigned)
     rows, errors = [row], {"equipose": (r_err, t_err)}
     if checkpoint is None and seen is not None:                    # handle models: the views whose handle was seen
         for label, m in (("handle seen", seen), ("handle hidden", ~seen)):

@@ -32,6 +32,9 @@ def add_arguments(p) -> None:
     p.add_argument("--refine", type=int, default=None,
                    help="with --model: ICP re-scoring of the K best hypotheses in the SDK (PoseEstimator(refine=K); "
                         "default: the file's own setting, 'auto')")
+    p.add_argument("--up", choices=["gt"], default=None,
+                   help="with --model: give the SDK each view's true up axis as the up prior (the setting of a user "
+                        "with a level IMU or a table plane; PoseEstimator.predict(..., up=...)); ICP-60 does not use it")
     p.add_argument("--store-metrics", dest="store_metrics", action="store_true",
                    help="with --model: write this table into the model file's 'metrics' metadata (what "
                         "'equipose models' lists)")
@@ -45,12 +48,14 @@ def run(args) -> int:
     exclude = [e for e in args.exclude.split(",") if e]
     if args.exclude_suspects:
         exclude += list(SUSPECT_TEST_INSTANCES.get(args.category, ()))
+    if args.store_metrics and args.up:
+        raise ConfigError("--store-metrics stores the plain setting's metrics; drop --up")
     if exclude and args.store_metrics:
         raise ConfigError("--store-metrics stores the full test set's metrics; drop --exclude / --exclude-suspects")
     res = evaluate(category=args.category, mode=args.mode, checkpoint=args.checkpoint, model_path=args.model,
                    data_root=args.data_root, limit=args.limit, icp_templates=args.icp_templates,
                    icp_points=args.icp_points, icp_iters=args.icp_iters, icp_samples=args.icp_samples, cache_dir=args.cache_dir,
-                   refine=args.refine, exclude=exclude)
+                   refine=args.refine, exclude=exclude, up=args.up)
     if args.store_metrics and not args.model:
         raise ConfigError("--store-metrics needs --model (the metrics describe that file)")
     print(format_table(res))

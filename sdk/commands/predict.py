@@ -15,7 +15,7 @@ import numpy as np
 
 from equipose.core.errors import ConfigError, RegionError
 
-__all__ = ["add_arguments", "run", "parse_box", "load_mask"]
+__all__ = ["add_arguments", "run", "parse_box", "parse_up", "load_mask"]
 
 
 def parse_box(text: str) -> tuple:
@@ -27,6 +27,22 @@ def parse_box(text: str) -> tuple:
     if len(vals) != 4:
         raise RegionError(f"--box {text!r}: expected four numbers x,y,w,h, got {len(vals)}")
     return vals
+
+
+def parse_up(text: str | None):
+    """``--up``: None, ``"plane"`` or ``"x,y,z"`` (camera frame) → what ``PoseEstimator.predict(up=...)`` takes.
+    Raises ``ConfigError``."""
+    if text is None or text == "plane":
+        return text
+    try:
+        vals = [float(v) for v in text.split(",")]
+    except ValueError:
+        vals = []
+    if len(vals) != 3:
+        raise ConfigError(f"--up {text!r}: expected 'plane' or a camera-frame direction x,y,z (e.g. 0,-1,0 for a "
+                          "level camera)")
+    from equipose.runtime.upright import check_up
+    return check_up(vals)
 
 
 def load_mask(path) -> "np.ndarray":
@@ -54,6 +70,9 @@ def add_arguments(p):
     p.add_argument("--threads", type=int, default=None, help="onnxruntime thread budget (default: all cores; a single object "
                    "of a light model runs on one)")
     p.add_argument("--max-frames", type=int, default=None, help="stop after this many frames")
+    p.add_argument("--up", metavar="plane|x,y,z", default=None,
+                   help="up prior for objects standing in their rest pose: 'plane' (the frame's table/floor) or a "
+                        "camera-frame up direction, e.g. from an IMU (see PoseEstimator.predict)")
     p.add_argument("--smoothing", type=float, default=0.0, help="temporal smoothing α in [0, 1) (default 0: raw)")
 
 
@@ -71,6 +90,7 @@ def run(args) -> int:
     if est.random_init:
         print(f"note: {pathlib.Path(model).name} has random weights (an export for tests or benchmarks): "
               "its poses are meaningless", file=sys.stderr)
+    up = parse_up(args.up)
     boxes = [parse_box(b) for b in args.box] if args.box else None
     masks = [load_mask(m) for m in args.mask] if args.mask else None
     out = pathlib.Path(args.out) if args.out else None
@@ -83,7 +103,7 @@ def run(args) -> int:
     try:
         with open_source(args.source) as src:
             for rec in est.track(src, boxes=boxes, masks=masks, auto=args.auto, smoothing=args.smoothing,
-                                 max_frames=args.max_frames, keep_frames=out is not None):
+                                 max_frames=args.max_frames, keep_frames=out is not None, up=up):
                 n_poses += len(rec.poses)
                 d = rec.to_dict()
                 if jsonl:

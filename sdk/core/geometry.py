@@ -11,7 +11,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 __all__ = ["quaternion_to_matrix", "matrix_to_quaternion", "rotation_angle_deg", "axis_angle_deg", "backproject",
-           "farthest_point_order", "random_rotations"]
+           "farthest_point_order", "random_rotations", "rotation_between"]
 
 
 def quaternion_to_matrix(q) -> np.ndarray:
@@ -99,3 +99,17 @@ def farthest_point_order(points: np.ndarray, n: int, start: int = 0) -> np.ndarr
 def random_rotations(n: int, seed=None) -> np.ndarray:
     """``n`` uniform random rotations [n, 3, 3] (scipy, seeded)."""
     return Rotation.random(n, random_state=seed).as_matrix()
+
+
+def rotation_between(a, b) -> np.ndarray:
+    """[3, 3] smallest rotation taking direction ``a`` [3] onto direction ``b`` [3] (any lengths > 0); for opposite
+    directions, the half turn about an axis perpendicular to ``a``."""
+    a = np.asarray(a, np.float64).reshape(3) / np.linalg.norm(a)
+    b = np.asarray(b, np.float64).reshape(3) / np.linalg.norm(b)
+    v, c = np.cross(a, b), float(a @ b)
+    if c < -1.0 + 1e-9:                                                         # opposite: half turn
+        p = np.cross(a, np.eye(3)[int(np.argmin(np.abs(a)))])
+        p /= np.linalg.norm(p)
+        return 2.0 * np.outer(p, p) - np.eye(3)
+    V = np.array([[0, -v[2], v[1]], [v[2], 0, -v[0]], [-v[1], v[0], 0]])      # [3, 3] cross-product matrix of v
+    return np.eye(3) + V + V @ V / (1.0 + c)

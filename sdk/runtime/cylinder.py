@@ -13,6 +13,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from equipose.core.geometry import rotation_between
+
 __all__ = ["point_normals", "cylinder_axis", "finish_cylinder"]
 
 
@@ -53,17 +55,8 @@ def cylinder_axis(points, axis0, k: int = 12) -> tuple:
     return (best if best @ a0 >= 0 else -best), c0, min(costs)
 
 
-def _turn(a, b) -> np.ndarray:
-    """[3, 3] smallest rotation taking unit ``a`` to unit ``b``."""
-    v, c = np.cross(a, b), float(a @ b)
-    if np.linalg.norm(v) < 1e-12:
-        return np.eye(3)
-    V = np.array([[0, -v[2], v[1]], [v[2], 0, -v[0]], [-v[1], v[0], 0]])
-    return np.eye(3) + V + V @ V / (1.0 + c)
-
-
 def finish_cylinder(result, model_points, axis_index: int = 2) -> None:
     """Turn a ``PoseResult`` in place so its symmetry axis (column ``axis_index``) is the cylinder stage's axis."""
     a0 = result.rotation[:, axis_index]
     a, _, _ = cylinder_axis(model_points, a0)
-    result.set_pose(_turn(a0, a) @ result.rotation, result.translation)
+    result.set_pose(rotation_between(a0, a) @ result.rotation, result.translation)

@@ -15,13 +15,13 @@ import numpy as np
 
 from equipose import preprocess as _crop
 from equipose.core.errors import ConfigError, EquiposeError, InvalidPointsError, ModelFormatError, RegionError
-from equipose.runtime.stages import apply_stages
-from equipose.runtime.hypotheses import apply_calibration, canonicalise_rotation, parse_symmetry, select_hypothesis
+from equipose.runtime.hypotheses import parse_symmetry
 from equipose.core.metadata import decode_metadata
 from equipose.core.presets import ModelConfig, total_macs
 from equipose.runtime.instance import build_instance_model, finish_instance
-from equipose.runtime.refine import refine_hypotheses
+from equipose.runtime.postprocess import finish_category
 from equipose.runtime.result import FrameError, PoseResult
+from equipose.runtime.upright import check_up, per_object_up, resolve_plane_up
 from equipose.models import resolve_model_file
 from equipose.runtime.session import INPUT_NAME, OUTPUT_NAMES, check_io, open_session
 
@@ -144,58 +144,38 @@ class PoseEstimator:
         return dict(zip(OUTPUT_NAMES, outs))
 
     def _finish(self, outputs: dict, b: int, prep: "_crop.PreparedPoints", *, prefer: int | None = None,
-                prefer_margin: float = 0.0) -> tuple:
+                prefer_margin: float = 0.0, up=None) -> tuple:
         """Outputs of batch item ``b`` → (PoseResult without timings, selection ms)."""
         if self.instance is not None:
+            if up is not None:
+                raise ConfigError("the up prior does not apply in instance-level mode (model_points): leave up=None")
             return finish_instance(self, self.instance, outputs, b, prep, prefer=prefer, prefer_margin=prefer_margin)
-        t0 = time.perf_counter()
-        R_all = outputs["hypothesis_rotations"][b]                              # [60, 3, 3]
-        t_all = outputs["hypothesis_translations"][b]                           # [60, 3] model units
-        s_all = outputs["hypothesis_scores"][b]                                 # [60]
-        canon = np.asarray(outputs["canonical_shape"][b], np.float64)           # [M, 3] learned frame, model units
-        if self.refine:                                                         # ICP re-scoring, learned frame
-            R_all, t_all, s_all = refine_hypotheses(prep.model_points, canon, R_all, t_all, s_all, k=self.refine,
-                                                    iters=self.refine_iters, bidirectional=not self.partial)
-        dR, dt = self.calibration_rotation, self.calibration_translation
-        R_cat, t_cat = apply_calibration(R_all, t_all, dR, dt)                  # [60, 3, 3], [60, 3]
-        sel = select_hypothesis(R_cat, t_cat, s_all, symmetry=self.symmetry, top_k=self.top_k, prefer=prefer,
-                                prefer_margin=prefer_margin)
-        U, _, Vt = np.linalg.svd(R_cat[sel.index])                              # float32 model output → exact SO(3)
-        R = U @ np.diag([1.0, 1.0, np.linalg.det(U @ Vt)]) @ Vt                 # [3, 3]
-        t_m = prep.to_metres(t_cat[sel.index])                                  # [3] metres
-        canon_obj = (canon @ dR.T + dt) * self.scale                            # [M, 3] category frame, metres
-        canon_cam = canon_obj @ R.T + t_m                                       # [M, 3] camera frame, metres
-        kind, axis, _ = parse_symmetry(self.symmetry)
-        res = PoseResult(
-            rotation=R, translation=t_m, score=sel.score, confidence=sel.confidence, ambiguous=sel.ambiguous,
-            canonical_shape=canon_cam, canonical_shape_object=canon_obj, hypothesis_index=sel.index, top_k=sel.top_k,
-            symmetry=self.symmetry, symmetry_axis=None if kind == "none" else R[:, axis].copy(),
-            rotation_canonical=canonicalise_rotation(R, self.symmetry), category=self.category,
-            random_init=self.random_init)
-        apply_stages(self.metadata, res, prep.model_points, t_cat[sel.index], canon @ dR.T + dt)  # handle, cylinder
-        return res, _ms(t0)
+        return finish_category(self, outputs, b, prep, prefer=prefer, prefer_margin=prefer_margin, up=up)
 
-    def predict_points(self, points) -> PoseResult:
+    def predict_points(self, points, *, up=None) -> PoseResult:
         """Pose of one object from its points.
 
-        Convention: ``points`` [P, 3] metres, camera frame (P ≥ 64; NaN/Inf rejected). Returns ``PoseResult``.
-        Raises ``InvalidPointsError``, ``TooFewPointsError``.
+        Convention: ``points`` [P, 3] metres, camera frame (P ≥ 64; NaN/Inf rejected); ``up`` None or the camera-frame
+        up direction [3] (the up prior, ``equipose.runtime.upright``). Returns ``PoseResult``.
+        Raises ``InvalidPointsError``, ``TooFewPointsError``, ``ConfigError`` (bad ``up``).
         """
-        return self.predict_points_batch([points])[0]
+        return self.predict_points_batch([points], up=up)[0]
 
-    def predict_points_batch(self, point_sets) -> list:
-        """Poses of several objects in one onnxruntime run. Convention: a list of [P_i, 3] metres → list of results."""
+    def predict_points_batch(self, point_sets, *, up=None) -> list:
+        """Poses of several objects in one onnxruntime run. Convention: a list of [P_i, 3] metres → list of results;
+        ``up``: None, one camera-frame direction [3] for all, or a list with one (or None) per object."""
         if isinstance(point_sets, np.ndarray) and point_sets.ndim == 2:
             raise InvalidPointsError("predict_points_batch takes a list of [P, 3] arrays; use predict_points for one")
+        ups = per_object_up(up, len(point_sets))
         t0 = time.perf_counter()
         preps = [_crop.prepare_points(p, self.num_points, self.scale) for p in point_sets]
         if not preps:
             return []
         fps_ms = _ms(t0) / len(preps)
         return self._infer(preps, [None] * len(preps), [fps_ms] * len(preps), [0.0] * len(preps),
-                           [len(_crop.check_points(p)) for p in point_sets])
+                           [len(_crop.check_points(p)) for p in point_sets], ups=ups)
 
-    def _infer(self, preps, crops, fps_ms, crop_ms, counts, prefer=None, prefer_margin=0.0) -> list:
+    def _infer(self, preps, crops, fps_ms, crop_ms, counts, prefer=None, prefer_margin=0.0, ups=None) -> list:
         t0 = time.perf_counter()
         x = np.stack([p.model_points for p in preps])                           # [B, N, 3]
         outputs = (self.runner or self.run_model)(x)
@@ -203,7 +183,8 @@ class PoseEstimator:
         results = []
         for b, prep in enumerate(preps):
             pref = None if prefer is None else prefer[b]
-            res, sel_ms = self._finish(outputs, b, prep, prefer=pref, prefer_margin=prefer_margin)
+            res, sel_ms = self._finish(outputs, b, prep, prefer=pref, prefer_margin=prefer_margin,
+                                       up=None if ups is None else ups[b])
             res.num_points, res.points_centre = int(counts[b]), prep.centre_m.copy()
             res.crop = {} if crops[b] is None else dict(crops[b].diagnostics)
             res.timings = {"crop": crop_ms[b], "fps": fps_ms[b], "inference": inf_ms, "selection": sel_ms,
@@ -211,16 +192,19 @@ class PoseEstimator:
             results.append(res)
         return results
 
-    def predict(self, depth, K, box=None, mask=None, depth_unit="mm", *, image_size=None, **crop_options) -> PoseResult:
+    def predict(self, depth, K, box=None, mask=None, depth_unit="mm", *, image_size=None, up=None,
+                **crop_options) -> PoseResult:
         """Pose of one object in a depth frame.
 
         Convention: ``depth`` [H, W] (uint16 mm by default; declare other units), ``K`` [3, 3] (for ``image_size``
-        (W, H) if given, else for the frame), ``box`` (x, y, w, h) pixels and/or ``mask`` [H, W] bool.
+        (W, H) if given, else for the frame), ``box`` (x, y, w, h) pixels and/or ``mask`` [H, W] bool; ``up``: None,
+        "plane" (the frame's support plane normal; ``result.up`` stays None when there is none) or a camera-frame
+        direction [3] — the up prior for objects standing in their rest pose (``equipose.runtime.upright``).
         Returns ``PoseResult`` with ``timings`` (crop, fps, inference, selection, total ms).
         Raises the typed errors of ``equipose.preprocess`` (depth, intrinsics, region, too few points).
         """
         regions = [{"box": box, "mask": mask}]
-        return self.predict_batch(depth, K, regions=regions, depth_unit=depth_unit, image_size=image_size,
+        return self.predict_batch(depth, K, regions=regions, depth_unit=depth_unit, image_size=image_size, up=up,
                                   **crop_options)[0]
 
     def crop(self, depth, K, box=None, mask=None, depth_unit="mm", *, image_size=None, **crop_options):
@@ -229,14 +213,16 @@ class PoseEstimator:
         return _crop.crop_points(depth, K, box=box, mask=mask, depth_unit=depth_unit, image_size=image_size, **opts)
 
     def predict_batch(self, depth, K, boxes=None, masks=None, depth_unit="mm", *, regions=None, image_size=None,
-                      return_errors: bool = False, prefer=None, prefer_margin: float = 0.0, **crop_options) -> list:
+                      return_errors: bool = False, prefer=None, prefer_margin: float = 0.0, up=None,
+                      **crop_options) -> list:
         """Poses of several objects in one frame, with a single onnxruntime run of batch B.
 
         Convention: ``boxes`` list of (x, y, w, h) and/or ``masks`` list of [H, W] bool (same length if both), or
         ``regions`` list of ``{"box": ..., "mask": ...}``. Returns a list of ``PoseResult`` in region order. With
         ``return_errors=True`` an object whose crop fails yields a ``FrameError`` (object_id = its position) instead of
-        raising; frame-level errors (depth, intrinsics) still raise.
+        raising; frame-level errors (depth, intrinsics) still raise. ``up``: as in ``predict``, for every object.
         """
+        up = check_up(up)
         if regions is None:
             regions = _crop.check_regions(boxes, masks)                         # [{box, mask}] per object
         if not regions:
@@ -252,12 +238,12 @@ class PoseEstimator:
         wants_plane = opts.get("remove_support_plane")
         if wants_plane is None:
             wants_plane = any(r.get("box") is not None and r.get("mask") is None for r in regions)
-        if wants_plane and opts.get("support_plane") is None:                   # one plane fit per frame
+        plane = opts.get("support_plane")
+        if (wants_plane or isinstance(up, str)) and plane is None:               # one plane fit per frame
             plane = _crop.find_support_plane(depth_m, Kf)
-            if plane is None:
-                crop_options = {**crop_options, "remove_support_plane": False}
-            else:
-                crop_options = {**crop_options, "support_plane": plane}
+            if wants_plane:
+                crop_options = {**crop_options, **({"remove_support_plane": False} if plane is None else
+                                                   {"support_plane": plane})}
         shared_ms = _ms(t0) / len(regions)
         preps, crops, fps_ms, crop_ms, counts, slots, out, prefs = [], [], [], [], [], [], [None] * len(regions), []
         for i, reg in enumerate(regions):
@@ -277,19 +263,21 @@ class PoseEstimator:
             crop_ms.append(shared_ms + (t2 - t1) * 1e3); fps_ms.append((t3 - t2) * 1e3)
             prefs.append(None if prefer is None else prefer[i])
         if preps:
-            results = self._infer(preps, crops, fps_ms, crop_ms, counts, prefer=prefs, prefer_margin=prefer_margin)
+            results = self._infer(preps, crops, fps_ms, crop_ms, counts, prefer=prefs, prefer_margin=prefer_margin,
+                                  ups=[resolve_plane_up(plane, c.points) for c in crops] if isinstance(up, str)
+                                  else [up] * len(preps))
             for i, r in zip(slots, results):
                 out[i] = r
         return out
 
     def predict_auto(self, depth, K, depth_unit="mm", *, image_size=None, return_errors: bool = False,
-                     auto_options: dict | None = None, **crop_options) -> list:
+                     auto_options: dict | None = None, up=None, **crop_options) -> list:
         """Tabletop auto crop (``equipose.preprocess.auto_masks``) then ``predict_batch`` on every mask found."""
         masks = _crop.auto_masks(depth, K, depth_unit=depth_unit, image_size=image_size, **(auto_options or {}))
         if not masks:
             return []
         return self.predict_batch(depth, K, masks=masks, depth_unit=depth_unit, image_size=image_size,
-                                  return_errors=return_errors, **crop_options)
+                                  return_errors=return_errors, up=up, **crop_options)
 
     def track(self, source, **kwargs):
         """Stream poses over a frame source; see ``equipose.runtime.tracking.track`` for the options. Yields ``TrackRecord``."""

@@ -39,6 +39,8 @@ class PoseResult:
         handle_visible: models with a handle (metadata ``handle``, e.g. ``mug``): whether observed points lie where
             the posed handle is (None for other models); handle_points: how many; handle_direction: [3] camera-frame
             unit handle direction (None for other models). A hidden handle also sets ``ambiguous``.
+        up: [3] camera-frame unit "up" the pose was constrained to (``predict(..., up=...)``, the up prior: the
+            category's +z lies along it), or None when no up prior was used (or ``up="plane"`` found no plane).
     """
     rotation: np.ndarray
     translation: np.ndarray
@@ -65,6 +67,7 @@ class PoseResult:
     handle_points: int = 0
     handle_direction: np.ndarray | None = None
     handle_direction_object: np.ndarray | None = None
+    up: np.ndarray | None = None
 
     def set_pose(self, rotation, translation):
         """Replace the pose (e.g. after smoothing) and update everything derived from it (shape, symmetry axis)."""
@@ -130,6 +133,7 @@ class PoseResult:
             "crop": self.crop,
             "points_centre_m": None if self.points_centre is None else np.round(self.points_centre, 6).tolist(),
             "random_init": bool(self.random_init),
+            "up": None if self.up is None else np.round(self.up, 6).tolist(),
         }
         if self.handle_visible is not None:
             d["handle_visible"] = bool(self.handle_visible)
@@ -150,6 +154,7 @@ class PoseResult:
         flag = " AMBIGUOUS(flip?)" if self.ambiguous else ""
         if self.handle_visible is not None:
             flag += " handle seen" if self.handle_visible else " handle NOT seen"
+        flag += "" if self.up is None else " up-prior"
         oid = "" if self.object_id is None else f"object {self.object_id}: "
         return (f"{oid}{self.category or 'object'} R(rotvec°)=[{rv[0]:7.1f} {rv[1]:7.1f} {rv[2]:7.1f}] "
                 f"t(m)=[{t[0]:+.3f} {t[1]:+.3f} {t[2]:+.3f}] confidence={self.confidence:.2f}{flag}")

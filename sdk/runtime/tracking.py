@@ -66,7 +66,8 @@ def _regions_for(frame, est, boxes, masks, regions, auto, auto_options):
 
 def track(est, source, *, boxes=None, masks=None, regions=None, auto: bool = False, smoothing: float = 0.5,
           reuse_margin: float = 0.05, reset_angle_deg: float = 45.0, max_jump_m: float = 0.1,
-          max_frames: int | None = None, auto_options: dict | None = None, keep_frames: bool = False):
+          max_frames: int | None = None, auto_options: dict | None = None, keep_frames: bool = False,
+          up=None):
     """Track object poses over ``source`` with the estimator ``est``. Yields ``TrackRecord`` per frame.
 
     Regions per frame: ``regions`` (a list, or a callable ``frame -> list`` of boxes or ``{"box", "mask"}`` dicts —
@@ -74,6 +75,7 @@ def track(est, source, *, boxes=None, masks=None, regions=None, auto: bool = Fal
     nearest previous position within ``max_jump_m``), one of them is required.
     ``reuse_margin``: the hypothesis nearest the object's previous rotation is kept when it scores within this relative
     margin of the best one (prevents flip-flopping between near-equal hypotheses). ``smoothing`` α in [0, 1).
+    ``up``: the up prior of ``PoseEstimator.predict`` ("plane" or a camera-frame direction [3]) for every frame.
     """
     if not 0.0 <= smoothing < 1.0:
         raise ConfigError(f"smoothing must be in [0, 1), got {smoothing}")
@@ -112,7 +114,7 @@ def track(est, source, *, boxes=None, masks=None, regions=None, auto: bool = Fal
                 ids, prefer = None, None
             outs = est.predict_batch(frame.depth, frame.K, regions=regs, depth_unit=frame.depth_unit,
                                      image_size=frame.image_size, return_errors=True, prefer=prefer,
-                                     prefer_margin=reuse_margin) if regs else []
+                                     prefer_margin=reuse_margin, up=up) if regs else []
         except EquiposeError as e:
             rec.errors.append(FrameError.from_exception(index, e))
             yield rec

@@ -1,0 +1,61 @@
+"""Category-level post-processing of one network run: ICP re-scoring, calibration into the category frame, hypothesis
+selection (or the up prior's, ``equipose.runtime.upright``), exact SO(3), metres, and the geometric stages.
+
+Convention: ``outputs`` are the 4 ONNX outputs of a batch (``equipose.runtime.session.OUTPUT_NAMES``), ``b`` the item;
+``prep.model_points`` [N, 3] model units, centred camera frame; ``up`` None or a unit [3] camera-frame direction.
+Results map the category frame to the camera frame, translation in metres (``equipose.runtime.result``).
+"""
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from equipose.runtime.hypotheses import apply_calibration, canonicalise_rotation, parse_symmetry, select_hypothesis
+from equipose.runtime.refine import refine_hypotheses
+from equipose.runtime.result import PoseResult
+from equipose.runtime.stages import apply_stages
+from equipose.runtime.upright import select_upright
+
+__all__ = ["finish_category"]
+
+
+def _nearest_rotation(M) -> np.ndarray:
+    """[3, 3] closest rotation to ``M`` (float32 model output → exact SO(3))."""
+    U, _, Vt = np.linalg.svd(np.asarray(M, np.float64))
+    return U @ np.diag([1.0, 1.0, np.linalg.det(U @ Vt)]) @ Vt
+
+
+def finish_category(est, outputs: dict, b: int, prep, *, prefer=None, prefer_margin: float = 0.0, up=None) -> tuple:
+    """Batch item ``b`` → (PoseResult without timings, selection ms). With ``up`` the up prior selects (its own ICP,
+    so the re-scoring and the tracking preference are not used); ``result.up`` records it."""
+    t0 = time.perf_counter()
+    R_all = outputs["hypothesis_rotations"][b]                                  # [60, 3, 3]
+    t_all = outputs["hypothesis_translations"][b]                               # [60, 3] model units
+    s_all = outputs["hypothesis_scores"][b]                                     # [60]
+    canon = np.asarray(outputs["canonical_shape"][b], np.float64)               # [M, 3] learned frame, model units
+    if est.refine and up is None:                                               # ICP re-scoring, learned frame
+        R_all, t_all, s_all = refine_hypotheses(prep.model_points, canon, R_all, t_all, s_all, k=est.refine,
+                                                iters=est.refine_iters, bidirectional=not est.partial)
+    dR, dt = est.calibration_rotation, est.calibration_translation
+    R_cat, t_cat = apply_calibration(R_all, t_all, dR, dt)                      # [60, 3, 3], [60, 3]
+    canon_cat = canon @ dR.T + dt                                               # [M, 3] category frame, model units
+    if up is None:
+        sel = select_hypothesis(R_cat, t_cat, s_all, symmetry=est.symmetry, top_k=est.top_k, prefer=prefer,
+                                prefer_margin=prefer_margin)
+        R, t_model = _nearest_rotation(R_cat[sel.index]), t_cat[sel.index]
+    else:
+        sel, R, t_model = select_upright(prep.model_points, canon_cat, R_cat, t_cat, s_all, up, symmetry=est.symmetry,
+                                         top_k=est.top_k, bidirectional=not est.partial)
+        R = _nearest_rotation(R)
+    t_m = prep.to_metres(t_model)                                               # [3] metres
+    canon_obj = canon_cat * est.scale                                           # [M, 3] category frame, metres
+    kind, axis, _ = parse_symmetry(est.symmetry)
+    res = PoseResult(
+        rotation=R, translation=t_m, score=sel.score, confidence=sel.confidence, ambiguous=sel.ambiguous,
+        canonical_shape=canon_obj @ R.T + t_m, canonical_shape_object=canon_obj, hypothesis_index=sel.index,
+        top_k=sel.top_k, symmetry=est.symmetry, symmetry_axis=None if kind == "none" else R[:, axis].copy(),
+        rotation_canonical=canonicalise_rotation(R, est.symmetry), category=est.category,
+        random_init=est.random_init, up=None if up is None else np.asarray(up, np.float64).copy())
+    apply_stages(est.metadata, res, prep.model_points, t_model, canon_cat)      # handle, cylinder
+    return res, (time.perf_counter() - t0) * 1e3
