@@ -178,7 +178,8 @@ def calibrate_onnx_refined(model_path, canonical_points: np.ndarray, k: int = 5,
         raise ConfigError(f"canonical_points must be [K, N, 3], got {pts.shape}")
     est = PoseEstimator(model_path, threads=1, refine=int(k), refine_iters=int(iters))
     est.calibration_rotation, est.calibration_translation = np.eye(3), np.zeros(3)     # raw, learned-frame poses
-    est.metadata = {**est.metadata, "handle": None, "shape_prior": None}               # stages need the category frame
+    est.metadata = {**est.metadata, "handle": None, "shape_prior": None, "rest_facet": None,  # stages need the category
+                    "flip_templates": None}                                             # frame: off
     res = [r for i in range(0, len(pts), 32)                                          # batches of 32: bounded memory
            for r in est.predict_points_batch([p * est.scale for p in pts[i:i + 32]])]  # metres, object at the origin
     dR = np.stack([r.rotation for r in res])                                          # [K, 3, 3]

@@ -25,7 +25,10 @@ Optional keys (absent in older files): ``precision`` "fp32" | "int8" (weights of
 re-scoring of the k best hypotheses (``equipose calibrate --model M --refine K``); ``handle`` JSON {"direction": 3}:
 the unit handle direction in the category frame, for categories whose pose includes a handle (``mug``: +x); the SDK
 then reports whether the handle was seen (``PoseResult.handle_visible``); ``shape_prior`` "cylinder": the SDK takes the
-symmetry axis from the observed normals (cans and tins, ``equipose.runtime.cylinder``).
+symmetry axis from the observed normals (cans and tins, ``equipose.runtime.cylinder``); ``flip_templates`` JSON
+{"points": T×M×3, "axes": ["z"], "source": str}: category-frame shapes (model units) that settle half-turn flips
+about those axes (``equipose.runtime.flip``); ``rest_facet`` JSON {"tolerance_deg": float}: complete-shape models read
+"up" off the cloud's resting hull face (``equipose.runtime.rest_facet``).
 """
 from __future__ import annotations
 
@@ -83,6 +86,35 @@ def _check_shape_prior(v, source: str) -> str:
     if v not in SHAPE_PRIORS:
         raise MetadataError(f"{source}: shape_prior must be one of {', '.join(SHAPE_PRIORS)}, got {v!r}")
     return v
+
+
+def _flip_templates(text, source: str):
+    """``flip_templates`` metadata → {"points": [T, M, 3] float64 (model units, category frame), "axes": [str]}."""
+    if not text:
+        return None
+    try:
+        d = json.loads(text)
+        pts, axes = np.asarray(d["points"], np.float64), [str(a) for a in d.get("axes", ["z"])]
+    except (ValueError, KeyError, TypeError) as e:
+        raise MetadataError(f"{source}: malformed flip_templates metadata ({e}); re-add them") from None
+    if pts.ndim != 3 or pts.shape[0] < 1 or pts.shape[1] < 16 or pts.shape[2] != 3 or not np.all(np.isfinite(pts)):
+        raise MetadataError(f"{source}: flip_templates must be T×M×3 finite points (M ≥ 16), got {pts.shape}")
+    if not axes or any(a not in ("x", "y", "z") for a in axes):
+        raise MetadataError(f"{source}: flip_templates axes must be some of x, y, z, got {axes}")
+    return {"points": pts, "axes": axes}
+
+
+def _rest_facet(text, source: str):
+    """``rest_facet`` metadata → {"tolerance_deg": float in (0, 90)} or None."""
+    if not text:
+        return None
+    try:
+        tol = float(json.loads(text)["tolerance_deg"])
+    except (ValueError, KeyError, TypeError) as e:
+        raise MetadataError(f"{source}: malformed rest_facet metadata ({e})") from None
+    if not 0.0 < tol < 90.0:
+        raise MetadataError(f"{source}: rest_facet tolerance_deg must be in (0, 90), got {tol}")
+    return {"tolerance_deg": tol}
 
 
 def _unit_handle(v, source: str) -> np.ndarray:
@@ -151,6 +183,8 @@ def decode_metadata(props: dict, source: str = "model") -> dict:
     except (ValueError, KeyError, TypeError) as e:
         raise MetadataError(f"{source}: malformed handle metadata ({e}); re-export the model") from None
     out["shape_prior"] = _check_shape_prior(props["shape_prior"], source) if props.get("shape_prior") else None
+    out["flip_templates"] = _flip_templates(props.get("flip_templates"), source)
+    out["rest_facet"] = _rest_facet(props.get("rest_facet"), source)
     _check_symmetry(out["symmetry"])
     if not (math.isfinite(out["scale"]) and out["scale"] > 0):
         raise MetadataError(f"{source}: scale must be positive, got {out['scale']}")

@@ -1,5 +1,6 @@
 """Category-level post-processing of one network run: ICP re-scoring, calibration into the category frame, hypothesis
-selection (or the up prior's, ``equipose.runtime.upright``), exact SO(3), metres, and the geometric stages.
+selection (or the up prior's, ``equipose.runtime.upright``, with "up" given or read off a complete cloud's resting
+face, ``equipose.runtime.rest_facet``), exact SO(3), metres, and the geometric stages.
 
 Convention: ``outputs`` are the 4 ONNX outputs of a batch (``equipose.runtime.session.OUTPUT_NAMES``), ``b`` the item;
 ``prep.model_points`` [N, 3] model units, centred camera frame; ``up`` None or a unit [3] camera-frame direction.
@@ -13,6 +14,7 @@ import numpy as np
 
 from equipose.runtime.hypotheses import apply_calibration, canonicalise_rotation, parse_symmetry, select_hypothesis
 from equipose.runtime.refine import refine_hypotheses
+from equipose.runtime.rest_facet import rest_facet_up
 from equipose.runtime.result import PoseResult
 from equipose.runtime.stages import apply_stages
 from equipose.runtime.upright import select_upright
@@ -28,7 +30,8 @@ def _nearest_rotation(M) -> np.ndarray:
 
 def finish_category(est, outputs: dict, b: int, prep, *, prefer=None, prefer_margin: float = 0.0, up=None) -> tuple:
     """Batch item ``b`` → (PoseResult without timings, selection ms). With ``up`` the up prior selects (its own ICP,
-    so the re-scoring and the tracking preference are not used); ``result.up`` records it."""
+    so the re-scoring and the tracking preference are not used); ``result.up`` records it. Models with metadata
+    ``rest_facet`` and no ``up`` take it from the cloud's resting face near the selected pose's up axis."""
     t0 = time.perf_counter()
     R_all = outputs["hypothesis_rotations"][b]                                  # [60, 3, 3]
     t_all = outputs["hypothesis_translations"][b]                               # [60, 3] model units
@@ -40,11 +43,16 @@ def finish_category(est, outputs: dict, b: int, prep, *, prefer=None, prefer_mar
     dR, dt = est.calibration_rotation, est.calibration_translation
     R_cat, t_cat = apply_calibration(R_all, t_all, dR, dt)                      # [60, 3, 3], [60, 3]
     canon_cat = canon @ dR.T + dt                                               # [M, 3] category frame, model units
+    up_source = None if up is None else "given"
     if up is None:
         sel = select_hypothesis(R_cat, t_cat, s_all, symmetry=est.symmetry, top_k=est.top_k, prefer=prefer,
                                 prefer_margin=prefer_margin)
         R, t_model = _nearest_rotation(R_cat[sel.index]), t_cat[sel.index]
-    else:
+        rest = est.metadata.get("rest_facet")
+        if rest is not None:
+            up = rest_facet_up(prep.model_points, R[:, 2], rest["tolerance_deg"])
+            up_source = None if up is None else "rest_facet"
+    if up is not None:
         sel, R, t_model = select_upright(prep.model_points, canon_cat, R_cat, t_cat, s_all, up, symmetry=est.symmetry,
                                          top_k=est.top_k, bidirectional=not est.partial)
         R = _nearest_rotation(R)
@@ -56,6 +64,6 @@ def finish_category(est, outputs: dict, b: int, prep, *, prefer=None, prefer_mar
         canonical_shape=canon_obj @ R.T + t_m, canonical_shape_object=canon_obj, hypothesis_index=sel.index,
         top_k=sel.top_k, symmetry=est.symmetry, symmetry_axis=None if kind == "none" else R[:, axis].copy(),
         rotation_canonical=canonicalise_rotation(R, est.symmetry), category=est.category,
-        random_init=est.random_init, up=None if up is None else np.asarray(up, np.float64).copy())
-    apply_stages(est.metadata, res, prep.model_points, t_model, canon_cat)      # handle, cylinder
+        random_init=est.random_init, up=None if up is None else np.asarray(up, np.float64).copy(), up_source=up_source)
+    apply_stages(est.metadata, res, prep.model_points, t_model, canon_cat, up=up)  # flip, cylinder, handle
     return res, (time.perf_counter() - t0) * 1e3

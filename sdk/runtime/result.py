@@ -40,7 +40,11 @@ class PoseResult:
             the posed handle is (None for other models); handle_points: how many; handle_direction: [3] camera-frame
             unit handle direction (None for other models). A hidden handle also sets ``ambiguous``.
         up: [3] camera-frame unit "up" the pose was constrained to (``predict(..., up=...)``, the up prior: the
-            category's +z lies along it), or None when no up prior was used (or ``up="plane"`` found no plane).
+            category's +z lies along it), or None when no up prior was used (or ``up="plane"`` found no plane);
+            up_source: "given" (the ``up`` argument) or "rest_facet" (read off a complete cloud's resting face).
+        flip_margin: models with front/back templates (metadata ``flip_templates``): relative gap between the
+            template fits of the pose and of its half turn about up (small = front/back unsure; sets ``ambiguous``
+            below 0.1), else None.
     """
     rotation: np.ndarray
     translation: np.ndarray
@@ -68,6 +72,8 @@ class PoseResult:
     handle_direction: np.ndarray | None = None
     handle_direction_object: np.ndarray | None = None
     up: np.ndarray | None = None
+    up_source: str | None = None
+    flip_margin: float | None = None
 
     def set_pose(self, rotation, translation):
         """Replace the pose (e.g. after smoothing) and update everything derived from it (shape, symmetry axis)."""
@@ -134,7 +140,10 @@ class PoseResult:
             "points_centre_m": None if self.points_centre is None else np.round(self.points_centre, 6).tolist(),
             "random_init": bool(self.random_init),
             "up": None if self.up is None else np.round(self.up, 6).tolist(),
+            "up_source": self.up_source,
         }
+        if self.flip_margin is not None:
+            d["flip_margin"] = round(float(self.flip_margin), 6)
         if self.handle_visible is not None:
             d["handle_visible"] = bool(self.handle_visible)
             d["handle_points"] = int(self.handle_points)

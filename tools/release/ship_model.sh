@@ -7,7 +7,8 @@
 # Environment (deploying a network trained on another data set, e.g. a complete-shape network on tabletop depth):
 #   SCALE=m/unit  EXPORT_CATEGORY=name  EVAL_MODE=complete|partial (test set; default MODE)  REFINE=0 (no ICP
 #   re-scoring calibration: the file then runs the plain network by default)  REFINE_ITERS=N (ICP iterations of the
-#   re-scoring, default 10; the complete-shape ModelNet models ship with 30)
+#   re-scoring, default 10; the complete-shape ModelNet models ship with 30)  FLIP_TEACHER=model FLIP_AXES=z
+#   (front/back templates from that complete-shape model, equipose.export.flip_templates, added before evaluation)
 # Writes sdk/models/NAME{,.int8}.onnx and docs/results/models/NAME{,.int8}{.json,.png,.txt} (+ .norefine.txt).
 set -euo pipefail
 NAME=$1; RUN=$2; CAT=$3; MODE=$4; NUM=${5:-512}; ICPN=${6:-100}
@@ -23,6 +24,10 @@ for F in "$NAME" "$NAME.int8"; do
         ${REFINE_ITERS:+--refine-iters $REFINE_ITERS}
     $EQ eval --model "sdk/models/$F.onnx" --category "$ECAT" --mode "$EVAL_MODE" --refine 0 --icp-templates 0 \
         | tee "$OUT/$F.norefine.txt"
+  fi
+  if [ -n "${FLIP_TEACHER:-}" ]; then
+    ${PY:-.venv/bin/python} -m equipose.export.flip_templates --model "sdk/models/$F.onnx" --teacher "$FLIP_TEACHER" \
+        --category "$CAT" --axes "${FLIP_AXES:-z}"
   fi
   $EQ eval --model "sdk/models/$F.onnx" --category "$ECAT" --mode "$EVAL_MODE" --icp-samples "$ICPN" \
       --json "$OUT/$F.json" --plot "$OUT/$F.png" --store-metrics | tee "$OUT/$F.txt"

@@ -1,0 +1,61 @@
+"""The flip stage: front/back settled against category template shapes (model metadata ``flip_templates``).
+
+Views of near-symmetric shapes (a car seen from the side, an airplane) leave the network unsure between a pose and its
+half turn about one category axis (the metadata's ``axes``: car "z" = front/back, airplane "y" = nose/tail and upside
+down); its own predicted canonical shape is nearly symmetric too. The stage fits the observation to a few complete
+category shapes — the teacher network's reconstructions of training clouds, in the category frame, no pose labels —
+from the pose and from each half turn (ICP; with the up prior only the turn about up, rotation held about up) and
+keeps the pose whose best-fitting template fits best. The translation is kept (the turns are about the category
+origin). ``ambiguous`` is then set when the runner-up fits within ``FLIP_AMBIGUOUS_MARGIN`` of it.
+
+Convention: ``model_points`` [N, 3] model units, centred camera frame; ``translation`` [3] the pose's translation in
+the same frame; templates [T, M, 3] model units, category frame; rotations category → camera.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from equipose.core.geometry import farthest_point_order
+from equipose.runtime.refine import icp_multi
+from equipose.runtime.upright import upright_icp
+
+__all__ = ["HALF_TURNS", "FLIP_ICP_ITERS", "FLIP_OBSERVED_POINTS", "FLIP_AMBIGUOUS_MARGIN", "flip_scores",
+           "finish_flip"]
+
+HALF_TURNS = {"x": np.diag([1.0, -1.0, -1.0]), "y": np.diag([-1.0, 1.0, -1.0]), "z": np.diag([-1.0, -1.0, 1.0])}
+FLIP_ICP_ITERS = 15
+FLIP_OBSERVED_POINTS = 256                   # observation points used by the template ICP (farthest-point subset)
+FLIP_AMBIGUOUS_MARGIN = 0.1                  # relative gap between the two fits below which front/back stays open
+
+
+def flip_scores(model_points, rotation, translation, templates, axes=("z",), up=None,
+                partial: bool = True) -> tuple:
+    """(candidate rotations [C, 3, 3], best template residual [C] model units², lower better): the pose first, then
+    its half turn about each of ``axes`` (only "z" with ``up``).
+
+    Convention: as the module's; ``up`` None or the unit camera-frame up of the up prior (rotation then held)."""
+    x = np.asarray(model_points, np.float64)
+    x = x[farthest_point_order(x, min(FLIP_OBSERVED_POINTS, len(x)))]          # [n, 3]
+    axes = [a for a in axes if up is None or a == "z"]
+    R0 = np.stack([rotation] + [rotation @ HALF_TURNS[a] for a in axes])        # [C, 3, 3]
+    best = np.full(len(R0), np.inf)
+    for y in templates:                                                         # y [M, 3]
+        t0 = np.broadcast_to(np.asarray(translation, np.float64), (len(R0), 3))
+        if up is None:
+            _, _, res = icp_multi(x, y, R0, t0, iters=FLIP_ICP_ITERS, bidirectional=not partial)
+        else:
+            _, _, res = upright_icp(x, y, R0, t0, up, iters=FLIP_ICP_ITERS, bidirectional=not partial)
+        best = np.minimum(best, res)
+    return R0, best
+
+
+def finish_flip(templates, result, model_points, translation, axes=("z",), up=None, partial: bool = True) -> None:
+    """Turn a ``PoseResult`` in place to the candidate (itself or a half turn) the templates fit best; ``ambiguous``
+    and ``flip_margin`` say how clearly they decide."""
+    R, s = flip_scores(model_points, result.rotation, translation, templates, axes=axes, up=up, partial=partial)
+    order = np.argsort(s, kind="stable")
+    margin = float((s[order[1]] - s[order[0]]) / max(s[order[1]], 1e-12)) if len(s) > 1 else 1.0
+    if order[0] != 0:
+        result.set_pose(R[order[0]], result.translation)
+    result.ambiguous = margin < FLIP_AMBIGUOUS_MARGIN
+    result.flip_margin = margin

@@ -1,0 +1,68 @@
+"""The flip stage (``equipose.runtime.flip``): a flipped pose is turned back by a template with a known answer, the
+metadata is validated, and a model with templates reports ``flip_margin``."""
+import shutil
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from equipose import PoseEstimator, errors
+from equipose.core.geometry import rotation_angle_deg
+from equipose.runtime.flip import HALF_TURNS, finish_flip
+from equipose.runtime.result import PoseResult
+
+
+def _wedge(rng, n=600):
+    """A car-like wedge: long in x, tall at the back (−x), low at the front (+x) — front and back differ."""
+    x = rng.uniform(-1, 1, n)
+    y = rng.uniform(-0.4, 0.4, n)
+    z = rng.uniform(0, 1, n) * (0.6 - 0.25 * x)
+    return np.c_[x, y, z - 0.2]
+
+
+def _result(R, t):
+    shape = np.zeros((4, 3))
+    return PoseResult(rotation=R, translation=np.asarray(t, float), score=0.0, confidence=0.0, ambiguous=True,
+                      canonical_shape=shape, canonical_shape_object=shape, hypothesis_index=0)
+
+
+@pytest.mark.parametrize("axis", ["z", "y"])
+def test_finish_flip_turns_a_flipped_pose_back(rng, axis):
+    template = _wedge(rng)
+    R_true = Rotation.from_euler("zyx", [40, 25, -10], degrees=True).as_matrix()
+    t = np.array([0.02, -0.01, 0.03])
+    obs = _wedge(rng, 400) @ R_true.T + t                                       # another sample of the same shape
+    res = _result(R_true @ HALF_TURNS[axis], t)                                 # the network's flipped answer
+    finish_flip(template[None], res, obs, t, axes=(axis,))
+    assert rotation_angle_deg(res.rotation, R_true) < 1e-3
+    assert res.flip_margin > 0.1 and not res.ambiguous
+    finish_flip(template[None], res, obs, t, axes=(axis,))                      # a right pose stays
+    assert rotation_angle_deg(res.rotation, R_true) < 1e-3
+
+
+def test_finish_flip_with_up_only_turns_about_up(rng):
+    template = _wedge(rng)
+    R_true = Rotation.from_euler("z", 70, degrees=True).as_matrix()
+    obs = _wedge(rng, 400) @ R_true.T
+    res = _result(R_true @ HALF_TURNS["z"], np.zeros(3))
+    finish_flip(template[None], res, obs, np.zeros(3), axes=("x", "z"), up=R_true[:, 2])
+    assert rotation_angle_deg(res.rotation, R_true) < 1e-3
+
+
+def test_model_with_flip_templates(tiny_model, tmp_path, rng):
+    from equipose.export.flip_templates import add_flip_templates
+    from equipose.export.onnx_export import update_metadata
+    path = tmp_path / "with_templates.onnx"
+    shutil.copy(tiny_model, path)
+    clouds = [_wedge(rng, 300) * 0.05 for _ in range(4)]
+    tmpl = add_flip_templates(path, tiny_model, clouds, axes=("z",), count=2, points=64, source="test")
+    assert tmpl.shape == (2, 64, 3)
+    est = PoseEstimator(path)
+    assert est.metadata["flip_templates"]["axes"] == ["z"]
+    r = est.predict_points(clouds[0] + [0.0, 0.0, 0.6])
+    assert r.flip_margin is not None and "flip_margin" in r.to_dict()
+    assert PoseEstimator(tiny_model).predict_points(clouds[0] + [0.0, 0.0, 0.6]).flip_margin is None
+    for bad in ({"points": [[1.0, 2.0]]}, {"points": np.zeros((1, 32, 3)).tolist(), "axes": ["w"]},
+                {"axes": ["z"]}):
+        with pytest.raises(errors.MetadataError, match="flip_templates"):
+            update_metadata(path, flip_templates=bad)
