@@ -54,7 +54,8 @@ def finish_category(est, outputs: dict, b: int, prep, *, prefer=None, prefer_mar
             up_source = None if up is None else "rest_facet"
     if up is not None:
         sel, R, t_model = select_upright(prep.model_points, canon_cat, R_cat, t_cat, s_all, up, symmetry=est.symmetry,
-                                         top_k=est.top_k, bidirectional=not est.partial)
+                                         top_k=est.top_k, bidirectional=not est.partial,
+                                         starts=[sel.index] if up_source == "rest_facet" else None)
         R = _nearest_rotation(R)
     t_m = prep.to_metres(t_model)                                               # [3] metres
     canon_obj = canon_cat * est.scale                                           # [M, 3] category frame, metres

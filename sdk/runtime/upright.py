@@ -99,17 +99,20 @@ def upright_icp(points, template, R0, t0, up, iters: int = COARSE_ITERS + FINE_I
 
 
 def select_upright(points, template, R_cat, t_cat, scores, up, *, symmetry: str = "none", top_k: int = 5,
-                   tolerance_deg: float = UP_TOLERANCE_DEG, bidirectional: bool = False) -> tuple:
+                   tolerance_deg: float = UP_TOLERANCE_DEG, bidirectional: bool = False, starts=None) -> tuple:
     """Choose the pose given ``up``. Returns (``Selection``, R [3, 3], t [3] model units).
 
-    The starts are the hypotheses within ``tolerance_deg`` of ``up`` (the nearest one when none is). ``score`` is the
+    The starts are the hypotheses within ``tolerance_deg`` of ``up`` (the nearest one when none is), or the given
+    ``starts`` (hypothesis indices: keep an already selected azimuth, as the rest-facet stage does; the front/back
+    partner then only informs ``ambiguous``). ``score`` is the
     ICP residual; ``confidence`` the relative margin to the best refined start > 30° away (modulo symmetry);
     ``ambiguous`` is set when the half turn about ``up`` (front/back) refines to within ``AMBIGUOUS_MARGIN`` of it.
     """
     up = check_up(up, allow_plane=False)
     s = np.asarray(scores, np.float64)
     ang = np.degrees(np.arccos(np.clip(R_cat[:, :, UP_AXIS] @ up, -1.0, 1.0)))   # [A] deg
-    starts = np.nonzero(ang <= tolerance_deg)[0]
+    keep = starts                                                               # given starts: the partner only informs
+    starts = np.nonzero(ang <= tolerance_deg)[0] if starts is None else np.atleast_1d(np.asarray(starts, int))
     if len(starts) == 0:
         starts = np.array([int(np.argmin(ang))])
     starts = starts[np.argsort(s[starts])]                                      # [J] best network score first
@@ -130,7 +133,7 @@ def select_upright(points, template, R_cat, t_cat, scores, up, *, symmetry: str 
     refined[fine], refined[-1] = True, True
     res = np.where(refined, res, np.maximum(res, rf.max()))                    # coarse-only residuals rank behind
     order = np.argsort(res, kind="stable")
-    b = int(order[0])
+    b = int(order[0]) if keep is None else int(np.argmin(np.where(np.arange(len(res)) < len(res) - 1, res, np.inf)))
     dist = symmetric_distance_deg(R[b], R, symmetry)                            # [J + 1] deg to the chosen
     far = [j for j in order if dist[j] > CONFIDENCE_MIN_ANGLE_DEG]
     confidence = 1.0 if not far else float((res[far[0]] - res[b]) / max(res[far[0]], 1e-12))

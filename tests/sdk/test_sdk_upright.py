@@ -117,3 +117,16 @@ def test_laptop_standing_on_a_table_known_answer(data_root):
         assert np.degrees(np.arccos(np.clip(res.up @ v["R"][:, 2], -1, 1))) < 1.0   # the table's normal is up
         errs.append(rotation_angle_deg(res.rotation, v["R"]))
     assert np.median(errs) < 10.0, errs
+
+
+def test_select_upright_keeps_given_starts_and_flags_a_better_partner(rng):
+    y = _l_shape(rng)
+    R_true = Rotation.from_euler("zyx", [35, -50, 20], degrees=True).as_matrix()
+    x = y[rng.choice(len(y), 300, replace=False)] @ R_true.T
+    hyps = ANCHORS.copy()
+    hyps[0] = R_true @ np.diag([-1.0, -1.0, 1.0])                               # an azimuth off by a half turn
+    sel, R, _ = select_upright(x, y, hyps, np.zeros((60, 3)), np.ones(60), R_true[:, 2], starts=[0])
+    assert sel.index == 0 and rotation_angle_deg(R, R_true) > 150               # kept, not silently turned ...
+    assert sel.ambiguous and sel.flip_margin < 0                                # ... but reported: the partner fits better
+    sel2, R2, _ = select_upright(x, y, hyps, np.zeros((60, 3)), np.ones(60), R_true[:, 2])
+    assert rotation_angle_deg(R2, R_true) < 2.0                                 # free selection takes the partner

@@ -6,7 +6,11 @@ the table, random azimuth, the category's max radius = 1 m like the paper-style 
 honesty, for each model given (fp32 and int8 files are separate names).
 
     python tools/bench/upright_tabletop.py --category laptop --models laptop-partial,laptop-partial.int8 \
-        [--views 5] [--limit 20] [--json out.json]
+        [--views 5] [--limit 20] [--icp] [--json out.json]
+
+``--icp`` adds ICP-60 + template (3 random training shapes, 256 observed points, 20 iterations; the paper's baseline)
+on the same crops, without and with the rotation held about the plane's up (``equipose.runtime.upright.upright_icp``
+from the 60 starts turned upright).
 """
 from __future__ import annotations
 
@@ -36,7 +40,7 @@ def standing_views(root, category: str, views: int, limit, cache_dir, seed: int 
     if path.is_file():
         return dict(np.load(path))
     rng = np.random.default_rng(seed)
-    out = {"depth": [], "R": [], "t": [], "box": []}
+    out, K = {"depth": [], "R": [], "t": [], "box": []}, None
     for _, shape, _ in tqdm(modelnet_shapes(root, category, "test", "npy1024", limit), desc=f"render {category}"):
         for _ in range(views):
             v = render_standing(shape, rng)
@@ -44,8 +48,8 @@ def standing_views(root, category: str, views: int, limit, cache_dir, seed: int 
                 continue
             for k in out:
                 out[k].append(v[k])
-            out["K"] = v["K"]
-    data = {k: np.asarray(v) for k, v in out.items()}
+            K = v["K"]
+    data = {**{k: np.asarray(v) for k, v in out.items()}, "K": K}
     path.parent.mkdir(parents=True, exist_ok=True)
     np.savez_compressed(path, **data)
     return data
@@ -69,6 +73,45 @@ def measure(model: str, data: dict, up) -> dict:
             "selection_ms_median": float(np.median(ms))}
 
 
+def measure_icp(data: dict, root, category: str, model: str, seed: int = 0) -> list:
+    """ICP-60 + template rows (none / plane) on the crops ``model``'s estimator makes of the same frames."""
+    from equipose.core.geometry import farthest_point_order
+    from equipose.core.icosahedral import ANCHORS
+    from equipose.preprocess import find_support_plane
+    from equipose.runtime.upright import resolve_plane_up, upright_icp
+    from equipose.train.evaluate import _icp_template_clouds
+    from equipose.train.icp import icp60
+    est = PoseEstimator(model)
+    clouds = _icp_template_clouds(root, category)
+    pick = np.random.default_rng(seed).choice(len(clouds), size=3, replace=False)
+    templates = [clouds[i][farthest_point_order(clouds[i], 512)].astype(np.float64) for i in pick]
+    errs = {"none": [], "plane": []}
+    for depth, R_true, box in tqdm(list(zip(data["depth"], data["R"], data["box"])), desc="icp60", leave=False):
+        crop = est.crop(depth, data["K"], box=tuple(int(v) for v in box))
+        x = crop.points[farthest_point_order(crop.points, min(256, len(crop.points)))].astype(np.float64)
+        up = resolve_plane_up(find_support_plane(depth.astype(np.float64) / 1000.0, data["K"]), crop.points)
+        best = {"none": (np.inf, None), "plane": (np.inf, None)}
+        for y in templates:
+            R, _, r = icp60(x, y, iters=20)
+            best["none"] = min(best["none"], (r, R), key=lambda v: v[0])
+            if up is not None:
+                Rs, _, rs = upright_icp(x, y, ANCHORS, x.mean(0) - ANCHORS @ y.mean(0), up, iters=20)
+                j = int(np.argmin(rs))
+                best["plane"] = min(best["plane"], (rs[j], Rs[j]), key=lambda v: v[0])
+        for k in errs:
+            R = best[k][1] if best[k][1] is not None else best["none"][1]
+            errs[k].append(float(rotation_angle_deg(R, R_true)))
+    rows = []
+    for k, e in errs.items():
+        e = np.array(e)
+        rows.append({"model": "icp60+template", "up": k, "n": len(e), "rot_mean_deg": float(e.mean()),
+                     "rot_median_deg": float(np.median(e)), "acc_5deg": float(np.mean(e <= 5)),
+                     "acc_10deg": float(np.mean(e <= 10)), "flip_rate": float(np.mean(e > 150)),
+                     "ambiguous_rate": 0.0, "flip_among_ambiguous": None, "flip_among_unambiguous": None,
+                     "selection_ms_median": float("nan")})
+    return rows
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--category", required=True)
@@ -77,12 +120,15 @@ def main(argv=None) -> int:
     p.add_argument("--limit", type=int, default=None, help="first K test instances")
     p.add_argument("--data-root", default=os.environ.get("EQUIPOSE_DATA", "../shared/data"))
     p.add_argument("--cache-dir", default="data_cache")
+    p.add_argument("--icp", action="store_true", help="add ICP-60 + template rows")
     p.add_argument("--json")
     a = p.parse_args(argv)
     t0 = time.perf_counter()
     data = standing_views(a.data_root, a.category, a.views, a.limit, a.cache_dir)
     print(f"{len(data['R'])} views of {a.category} standing on a table ({time.perf_counter() - t0:.0f} s)")
     rows = [measure(m, data, up) for m in a.models.split(",") for up in (None, "plane")]
+    if a.icp:
+        rows += measure_icp(data, a.data_root, a.category, a.models.split(",")[0])
     print(f"{'model':28s} {'up':6s} {'mean':>7s} {'median':>7s} {'5°':>5s} {'10°':>5s} {'flip':>5s} {'amb':>5s} "
           f"{'flip|amb':>8s} {'flip|¬amb':>9s} {'sel ms':>7s}")
     for r in rows:
