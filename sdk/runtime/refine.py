@@ -32,10 +32,12 @@ def kabsch(src: np.ndarray, dst: np.ndarray) -> tuple:
 
 
 def icp_multi(observed: np.ndarray, template: np.ndarray, R0: np.ndarray, t0: np.ndarray, iters: int = 30,
-              bidirectional: bool = False, tree: cKDTree | None = None) -> tuple:
+              bidirectional: bool = False, tree: cKDTree | None = None, constrain=None) -> tuple:
     """ICP from several initial poses at once. R0 [J, 3, 3], t0 [J, 3] → (R [J,3,3], t [J,3], residual [J]).
 
     Residual: mean squared nearest-neighbour distance (observation→template, plus the reverse if bidirectional).
+    ``constrain``: optional map of rotations [J, 3, 3] → [J, 3, 3] applied to the starts and after every Kabsch step
+    (the translation is then re-fitted for the constrained rotation), e.g. the up prior's "keep +z on up".
     """
     x = np.asarray(observed, np.float64)                                       # [N, 3]
     y = np.asarray(template, np.float64)                                       # [M, 3]
@@ -44,6 +46,8 @@ def icp_multi(observed: np.ndarray, template: np.ndarray, R0: np.ndarray, t0: np
     tree = tree or cKDTree(y)
     obs_tree = cKDTree(x) if bidirectional else None
     R, t = np.array(R0, np.float64), np.array(t0, np.float64)
+    if constrain is not None:
+        R = constrain(R)
     J, N, M = len(R), len(x), len(y)
     for it in range(iters + 1):
         local = np.einsum("jni,jik->jnk", (x[None] - t[:, None]), R)           # [J, N, 3] = Rᵀ(x − t)
@@ -59,6 +63,9 @@ def icp_multi(observed: np.ndarray, template: np.ndarray, R0: np.ndarray, t0: np
         if it == iters:
             break
         R, t = kabsch(src, np.ascontiguousarray(dst))
+        if constrain is not None:
+            R = constrain(R)
+            t = dst.mean(1) - np.einsum("jik,jk->ji", R, src.mean(1))          # best translation for that R
     return R, t, res
 
 

@@ -16,13 +16,12 @@ apply unchanged); ``template`` [M, 3] the canonical shape in the category frame,
 from __future__ import annotations
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from equipose.core.errors import ConfigError
 from equipose.core.geometry import rotation_between
 from equipose.runtime.hypotheses import (AMBIGUOUS_MARGIN, CONFIDENCE_MIN_ANGLE_DEG, FLIP_MIN_ANGLE_DEG, Selection,
                                          symmetric_distance_deg)
-from equipose.runtime.refine import kabsch
+from equipose.runtime.refine import icp_multi
 
 __all__ = ["UP_TOLERANCE_DEG", "UP_AXIS", "check_up", "upright_icp", "select_upright", "resolve_plane_up", "per_object_up"]
 
@@ -74,28 +73,8 @@ def upright_icp(points, template, R0, t0, up, iters: int = COARSE_ITERS + FINE_I
     Convention: as the module's; ``R0`` [J, 3, 3], ``t0`` [J, 3]. Returns (R [J, 3, 3], t [J, 3], residual [J]) —
     mean squared nearest-neighbour distance observation → template (+ the reverse when ``bidirectional``).
     """
-    x = np.asarray(points, np.float64)                                         # [N, 3]
-    y = np.asarray(template, np.float64)                                       # [M, 3]
-    tree, obs_tree = cKDTree(y), cKDTree(x) if bidirectional else None
-    R, t = _keep_up(np.asarray(R0, np.float64), up), np.array(t0, np.float64)  # [J, 3, 3], [J, 3]
-    J, N, M = len(R), len(x), len(y)
-    for it in range(iters + 1):
-        local = np.einsum("jni,jik->jnk", x[None] - t[:, None], R)             # [J, N, 3] = Rᵀ(x − t)
-        d1, i1 = tree.query(local.reshape(-1, 3))
-        res = (d1.reshape(J, N) ** 2).mean(1)                                  # [J]
-        src, dst = y[i1.reshape(J, N)], np.broadcast_to(x, (J, N, 3))
-        if bidirectional:
-            posed = np.einsum("mk,jik->jmi", y, R) + t[:, None]                # [J, M, 3]
-            d2, i2 = obs_tree.query(posed.reshape(-1, 3))
-            res = res + (d2.reshape(J, M) ** 2).mean(1)
-            src = np.concatenate([src, np.broadcast_to(y, (J, M, 3))], 1)
-            dst = np.concatenate([dst, x[i2.reshape(J, M)]], 1)
-        if it == iters:
-            break
-        R, _ = kabsch(src, np.ascontiguousarray(dst))
-        R = _keep_up(R, up)
-        t = dst.mean(1) - np.einsum("jik,jk->ji", R, src.mean(1))              # best translation for the kept R
-    return R, t, res
+    return icp_multi(points, template, R0, t0, iters=iters, bidirectional=bidirectional,
+                     constrain=lambda R: _keep_up(R, up))
 
 
 def select_upright(points, template, R_cat, t_cat, scores, up, *, symmetry: str = "none", top_k: int = 5,
