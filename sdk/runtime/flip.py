@@ -37,16 +37,17 @@ def flip_scores(model_points, rotation, translation, templates, axes=("z",), up=
     x = np.asarray(model_points, np.float64)
     x = x[farthest_point_order(x, min(FLIP_OBSERVED_POINTS, len(x)))]          # [n, 3]
     axes = [a for a in axes if up is None or a == "z"]
-    R0 = np.stack([rotation] + [rotation @ HALF_TURNS[a] for a in axes])        # [C, 3, 3]
-    best = np.full(len(R0), np.inf)
-    for y in templates:                                                         # y [M, 3]
-        t0 = np.broadcast_to(np.asarray(translation, np.float64), (len(R0), 3))
-        if up is None:
-            _, _, res = icp_multi(x, y, R0, t0, iters=FLIP_ICP_ITERS, bidirectional=not partial)
-        else:
-            _, _, res = upright_icp(x, y, R0, t0, up, iters=FLIP_ICP_ITERS, bidirectional=not partial)
-        best = np.minimum(best, res)
-    return R0, best
+    cands = np.stack([rotation] + [rotation @ HALF_TURNS[a] for a in axes])     # [C, 3, 3]
+    Y = np.asarray(templates, np.float64)                                       # [T, M, 3]
+    C, T = len(cands), len(Y)
+    R0 = np.tile(cands, (T, 1, 1))                                              # [T·C, 3, 3] every pair at once
+    t0 = np.broadcast_to(np.asarray(translation, np.float64), (T * C, 3))
+    which = np.repeat(np.arange(T), C)                                          # [T·C] template of each start
+    if up is None:
+        _, _, res = icp_multi(x, Y, R0, t0, iters=FLIP_ICP_ITERS, bidirectional=not partial, which=which)
+    else:
+        _, _, res = upright_icp(x, Y, R0, t0, up, iters=FLIP_ICP_ITERS, bidirectional=not partial, which=which)
+    return cands, res.reshape(T, C).min(0)                                      # [C] best template per candidate
 
 
 def finish_flip(templates, result, model_points, translation, axes=("z",), up=None, partial: bool = True) -> None:

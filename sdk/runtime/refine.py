@@ -32,33 +32,41 @@ def kabsch(src: np.ndarray, dst: np.ndarray) -> tuple:
 
 
 def icp_multi(observed: np.ndarray, template: np.ndarray, R0: np.ndarray, t0: np.ndarray, iters: int = 30,
-              bidirectional: bool = False, tree: cKDTree | None = None, constrain=None) -> tuple:
+              bidirectional: bool = False, tree: cKDTree | None = None, constrain=None, which=None) -> tuple:
     """ICP from several initial poses at once. R0 [J, 3, 3], t0 [J, 3] → (R [J,3,3], t [J,3], residual [J]).
 
     Residual: mean squared nearest-neighbour distance (observation→template, plus the reverse if bidirectional).
     ``constrain``: optional map of rotations [J, 3, 3] → [J, 3, 3] applied to the starts and after every Kabsch step
     (the translation is then re-fitted for the constrained rotation), e.g. the up prior's "keep +z on up".
+    ``template`` may also be [T, M, 3] (several templates of equal size) with ``which`` [J] the template of each start.
     """
     x = np.asarray(observed, np.float64)                                       # [N, 3]
-    y = np.asarray(template, np.float64)                                       # [M, 3]
-    if x.ndim != 2 or x.shape[1] != 3 or len(x) < 3 or y.ndim != 2 or y.shape[1] != 3 or len(y) < 3:
-        raise InvalidPointsError(f"ICP needs [N≥3, 3] point arrays, got {x.shape} and {y.shape}")
-    tree = tree or cKDTree(y)
-    obs_tree = cKDTree(x) if bidirectional else None
+    Y = np.asarray(template, np.float64)
+    Y = Y[None] if Y.ndim == 2 else Y                                          # [T, M, 3]
+    if x.ndim != 2 or x.shape[1] != 3 or len(x) < 3 or Y.ndim != 3 or Y.shape[2] != 3 or Y.shape[1] < 3:
+        raise InvalidPointsError(f"ICP needs [N≥3, 3] point arrays, got {x.shape} and {np.shape(template)}")
     R, t = np.array(R0, np.float64), np.array(t0, np.float64)
+    J, N, M = len(R), len(x), Y.shape[1]
+    which = np.zeros(J, int) if which is None else np.asarray(which, int)      # [J] template of each start
+    groups = [(k, np.nonzero(which == k)[0]) for k in np.unique(which)]
+    trees = {k: tree if (tree is not None and len(Y) == 1) else cKDTree(Y[k]) for k, _ in groups}
+    obs_tree = cKDTree(x) if bidirectional else None
     if constrain is not None:
         R = constrain(R)
-    J, N, M = len(R), len(x), len(y)
     for it in range(iters + 1):
         local = np.einsum("jni,jik->jnk", (x[None] - t[:, None]), R)           # [J, N, 3] = Rᵀ(x − t)
-        d1, i1 = tree.query(local.reshape(-1, 3))
-        res = (d1.reshape(J, N) ** 2).mean(1)                                  # [J]
-        src, dst = y[i1.reshape(J, N)], np.broadcast_to(x, (J, N, 3))         # template pts ↔ observed pts
+        d1, i1 = np.empty((J, N)), np.empty((J, N), int)
+        for k, js in groups:
+            d, i = trees[k].query(local[js].reshape(-1, 3))
+            d1[js], i1[js] = d.reshape(len(js), N), i.reshape(len(js), N)
+        res = (d1 ** 2).mean(1)                                                # [J]
+        Yj = Y[which]                                                          # [J, M, 3] each start's template
+        src, dst = np.take_along_axis(Yj, i1[..., None], 1), np.broadcast_to(x, (J, N, 3))  # template ↔ observed
         if bidirectional:
-            posed = np.einsum("mk,jik->jmi", y, R) + t[:, None]               # [J, M, 3] = R y + t
+            posed = np.einsum("jmk,jik->jmi", Yj, R) + t[:, None]             # [J, M, 3] = R y + t
             d2, i2 = obs_tree.query(posed.reshape(-1, 3))
             res = res + (d2.reshape(J, M) ** 2).mean(1)
-            src = np.concatenate([src, np.broadcast_to(y, (J, M, 3))], 1)
+            src = np.concatenate([src, Yj], 1)
             dst = np.concatenate([dst, x[i2.reshape(J, M)]], 1)
         if it == iters:
             break

@@ -23,7 +23,8 @@ from equipose.runtime.hypotheses import (AMBIGUOUS_MARGIN, CONFIDENCE_MIN_ANGLE_
                                          symmetric_distance_deg)
 from equipose.runtime.refine import icp_multi
 
-__all__ = ["UP_TOLERANCE_DEG", "UP_AXIS", "check_up", "upright_icp", "select_upright", "resolve_plane_up", "per_object_up"]
+__all__ = ["UP_TOLERANCE_DEG", "UP_AXIS", "check_up", "upright_icp", "select_upright", "resolve_plane_up",
+           "per_object_up"]
 
 UP_TOLERANCE_DEG = 40.0    # hypotheses whose up axis is this close to ``up`` are refined (≈ 7 of the 60)
 UP_AXIS = 2                # the category frame's up axis (+z) for every equipose category
@@ -67,14 +68,16 @@ def _keep_up(R: np.ndarray, up: np.ndarray) -> np.ndarray:
     return turn @ R
 
 
-def upright_icp(points, template, R0, t0, up, iters: int = COARSE_ITERS + FINE_ITERS, bidirectional: bool = False) -> tuple:
+def upright_icp(points, template, R0, t0, up, iters: int = COARSE_ITERS + FINE_ITERS, bidirectional: bool = False,
+                which=None) -> tuple:
     """ICP from several starts with the rotation's up axis held on ``up`` (each Kabsch step is turned back onto it).
 
-    Convention: as the module's; ``R0`` [J, 3, 3], ``t0`` [J, 3]. Returns (R [J, 3, 3], t [J, 3], residual [J]) —
+    Convention: as the module's; ``R0`` [J, 3, 3], ``t0`` [J, 3] (``template`` [T, M, 3] with ``which`` [J]: see
+    ``icp_multi``). Returns (R [J, 3, 3], t [J, 3], residual [J]) —
     mean squared nearest-neighbour distance observation → template (+ the reverse when ``bidirectional``).
     """
     return icp_multi(points, template, R0, t0, iters=iters, bidirectional=bidirectional,
-                     constrain=lambda R: _keep_up(R, up))
+                     constrain=lambda R: _keep_up(R, up), which=which)
 
 
 def select_upright(points, template, R_cat, t_cat, scores, up, *, symmetry: str = "none", top_k: int = 5,
@@ -122,7 +125,8 @@ def select_upright(points, template, R_cat, t_cat, scores, up, *, symmetry: str 
     top = [{"index": int(starts[j]), "score": float(res[j]), "angle_deg": round(float(dist[j]), 2)}
            for j in order[:max(top_k, 1)]]
     sel = Selection(index=int(starts[b]), score=float(res[b]), confidence=float(np.clip(confidence, 0.0, 1.0)),
-                    ambiguous=bool(ambiguous), runner_up=int(starts[far[0]]) if far else -1, flip=int(starts[flips[0]]) if flips else -1,
+                    ambiguous=bool(ambiguous), runner_up=int(starts[far[0]]) if far else -1,
+                    flip=int(starts[flips[0]]) if flips else -1,
                     runner_up_angle_deg=float(dist[far[0]]) if far else float("nan"), flip_margin=flip_margin,
                     top_k=top)
     return sel, R[b], t[b]
@@ -152,6 +156,7 @@ def per_object_up(up, count: int) -> list:
     if shared:
         return [check_up(up, allow_plane=False)] * count
     if not hasattr(up, "__len__") or len(up) != count:
-        raise ConfigError(f"up has {len(up) if hasattr(up, '__len__') else 'no'} entries for {count} point sets: give one direction [3] for all, or one "
+        n = len(up) if hasattr(up, "__len__") else "no"
+        raise ConfigError(f"up has {n} entries for {count} point sets: give one direction [3] for all, or one "
                           "per point set")
     return [check_up(u, allow_plane=False) for u in up]
