@@ -9,6 +9,7 @@
 #   re-scoring calibration: the file then runs the plain network by default)  REFINE_ITERS=N (ICP iterations of the
 #   re-scoring, default 10; the complete-shape ModelNet models ship with 30)  FLIP_TEACHER=model FLIP_AXES=z
 #   (front/back templates from that complete-shape model, equipose.export.flip_templates, added before evaluation)
+#   REST_FACET=deg (complete clouds: the rest-facet stage with that tolerance, metadata rest_facet)
 # Writes sdk/models/NAME{,.int8}.onnx and docs/results/models/NAME{,.int8}{.json,.png,.txt} (+ .norefine.txt).
 set -euo pipefail
 NAME=$1; RUN=$2; CAT=$3; MODE=$4; NUM=${5:-512}; ICPN=${6:-100}
@@ -24,6 +25,10 @@ for F in "$NAME" "$NAME.int8"; do
         ${REFINE_ITERS:+--refine-iters $REFINE_ITERS}
     $EQ eval --model "sdk/models/$F.onnx" --category "$ECAT" --mode "$EVAL_MODE" --refine 0 --icp-templates 0 \
         | tee "$OUT/$F.norefine.txt"
+  fi
+  if [ -n "${REST_FACET:-}" ]; then
+    ${PY:-.venv/bin/python} -c "from equipose.export.onnx_export import update_metadata as u; \
+u('sdk/models/$F.onnx', rest_facet={'tolerance_deg': float('$REST_FACET')})"
   fi
   if [ -n "${FLIP_TEACHER:-}" ]; then
     ${PY:-.venv/bin/python} -m equipose.export.flip_templates --model "sdk/models/$F.onnx" --teacher "$FLIP_TEACHER" \
