@@ -55,17 +55,25 @@ def standing_views(root, category: str, views: int, limit, cache_dir, seed: int 
     return data
 
 
+def _trans(terr, rot_err) -> dict:
+    """Translation figures (metres; the category's max radius is 1 m) and the 5° 5 cm accuracy."""
+    te = np.asarray(terr)
+    return {"trans_mean_m": float(te.mean()), "trans_median_m": float(np.median(te)),
+            "acc_5deg_5cm": float(np.mean((np.asarray(rot_err) <= 5) & (te <= 0.05)))}
+
+
 def measure(model: str, data: dict, up) -> dict:
     est = PoseEstimator(model)
-    errs, amb, ms = [], [], []
-    for depth, R, box in zip(data["depth"], data["R"], data["box"]):
+    errs, terr, amb, ms = [], [], [], []
+    for depth, R, t, box in zip(data["depth"], data["R"], data["t"], data["box"]):
         r = est.predict(depth, data["K"], box=tuple(int(v) for v in box), up=up)
         errs.append(float(rotation_angle_deg(r.rotation, R)))
+        terr.append(float(np.linalg.norm(r.translation - t)))
         amb.append(bool(r.ambiguous))
         ms.append(r.timings["selection"])
     e, a = np.array(errs), np.array(amb)
     flip = e > 150
-    return {"model": model, "up": up or "none", "n": len(e), "rot_mean_deg": float(e.mean()),
+    return {"model": model, "up": up or "none", "n": len(e), **_trans(terr, e), "rot_mean_deg": float(e.mean()),
             "rot_median_deg": float(np.median(e)), "acc_5deg": float(np.mean(e <= 5)),
             "acc_10deg": float(np.mean(e <= 10)), "flip_rate": float(flip.mean()), "ambiguous_rate": float(a.mean()),
             "flip_among_ambiguous": float(flip[a].mean()) if a.any() else None,
@@ -85,26 +93,28 @@ def measure_icp(data: dict, root, category: str, model: str, seed: int = 0) -> l
     clouds = _icp_template_clouds(root, category)
     pick = np.random.default_rng(seed).choice(len(clouds), size=3, replace=False)
     templates = [clouds[i][farthest_point_order(clouds[i], 512)].astype(np.float64) for i in pick]
-    errs = {"none": [], "plane": []}
-    for depth, R_true, box in tqdm(list(zip(data["depth"], data["R"], data["box"])), desc="icp60", leave=False):
+    errs, terr = {"none": [], "plane": []}, {"none": [], "plane": []}
+    for depth, R_true, t_true, box in tqdm(list(zip(data["depth"], data["R"], data["t"], data["box"])), desc="icp60",
+                                           leave=False):
         crop = est.crop(depth, data["K"], box=tuple(int(v) for v in box))
         x = crop.points[farthest_point_order(crop.points, min(256, len(crop.points)))].astype(np.float64)
         up = resolve_plane_up(find_support_plane(depth.astype(np.float64) / 1000.0, data["K"]), crop.points)
         best = {"none": (np.inf, None), "plane": (np.inf, None)}
-        for y in templates:
-            R, _, r = icp60(x, y, iters=20)
-            best["none"] = min(best["none"], (r, R), key=lambda v: v[0])
+        for y in templates:                                                     # templates centred on their origin
+            R, t, r = icp60(x, y, iters=20)
+            best["none"] = min(best["none"], (r, R, t), key=lambda v: v[0])
             if up is not None:
-                Rs, _, rs = upright_icp(x, y, ANCHORS, x.mean(0) - ANCHORS @ y.mean(0), up, iters=20)
+                Rs, ts, rs = upright_icp(x, y, ANCHORS, x.mean(0) - ANCHORS @ y.mean(0), up, iters=20)
                 j = int(np.argmin(rs))
-                best["plane"] = min(best["plane"], (rs[j], Rs[j]), key=lambda v: v[0])
+                best["plane"] = min(best["plane"], (rs[j], Rs[j], ts[j]), key=lambda v: v[0])
         for k in errs:
-            R = best[k][1] if best[k][1] is not None else best["none"][1]
+            _, R, t = best[k] if best[k][1] is not None else best["none"]
             errs[k].append(float(rotation_angle_deg(R, R_true)))
+            terr[k].append(float(np.linalg.norm(t - t_true)))
     rows = []
     for k, e in errs.items():
         e = np.array(e)
-        rows.append({"model": "icp60+template", "up": k, "n": len(e), "rot_mean_deg": float(e.mean()),
+        rows.append({"model": "icp60+template", "up": k, "n": len(e), **_trans(terr[k], e), "rot_mean_deg": float(e.mean()),
                      "rot_median_deg": float(np.median(e)), "acc_5deg": float(np.mean(e <= 5)),
                      "acc_10deg": float(np.mean(e <= 10)), "flip_rate": float(np.mean(e > 150)),
                      "ambiguous_rate": 0.0, "flip_among_ambiguous": None, "flip_among_unambiguous": None,
@@ -129,13 +139,14 @@ def main(argv=None) -> int:
     rows = [measure(m, data, up) for m in a.models.split(",") for up in (None, "plane")]
     if a.icp:
         rows += measure_icp(data, a.data_root, a.category, a.models.split(",")[0])
-    print(f"{'model':28s} {'up':6s} {'mean':>7s} {'median':>7s} {'5°':>5s} {'10°':>5s} {'flip':>5s} {'amb':>5s} "
-          f"{'flip|amb':>8s} {'flip|¬amb':>9s} {'sel ms':>7s}")
+    print(f"{'model':22s} {'up':6s} {'mean':>7s} {'median':>7s} {'5°':>5s} {'10°':>5s} {'flip':>5s} {'t med m':>8s} "
+          f"{'5°5cm':>6s} {'amb':>5s} {'flip|amb':>8s} {'flip|¬amb':>9s} {'sel ms':>7s}")
     for r in rows:
         fa = "–" if r["flip_among_ambiguous"] is None else f"{r['flip_among_ambiguous']:.2f}"
         fu = "–" if r["flip_among_unambiguous"] is None else f"{r['flip_among_unambiguous']:.2f}"
-        print(f"{r['model']:28s} {r['up']:6s} {r['rot_mean_deg']:7.2f} {r['rot_median_deg']:7.2f} {r['acc_5deg']:5.2f} "
-              f"{r['acc_10deg']:5.2f} {r['flip_rate']:5.2f} {r['ambiguous_rate']:5.2f} {fa:>8s} {fu:>9s} "
+        print(f"{r['model']:22s} {r['up']:6s} {r['rot_mean_deg']:7.2f} {r['rot_median_deg']:7.2f} {r['acc_5deg']:5.2f} "
+              f"{r['acc_10deg']:5.2f} {r['flip_rate']:5.2f} {r['trans_median_m']:8.3f} {r['acc_5deg_5cm']:6.2f} "
+              f"{r['ambiguous_rate']:5.2f} {fa:>8s} {fu:>9s} "
               f"{r['selection_ms_median']:7.1f}")
     if a.json:
         pathlib.Path(a.json).write_text(json.dumps({"category": a.category, "views": a.views, "rows": rows}, indent=1))
