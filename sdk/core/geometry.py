@@ -102,14 +102,22 @@ def random_rotations(n: int, seed=None) -> np.ndarray:
 
 
 def rotation_between(a, b) -> np.ndarray:
-    """[3, 3] smallest rotation taking direction ``a`` [3] onto direction ``b`` [3] (any lengths > 0); for opposite
-    directions, the half turn about an axis perpendicular to ``a``."""
-    a = np.asarray(a, np.float64).reshape(3) / np.linalg.norm(a)
-    b = np.asarray(b, np.float64).reshape(3) / np.linalg.norm(b)
-    v, c = np.cross(a, b), float(a @ b)
-    if c < -1.0 + 1e-9:                                                         # opposite: half turn
-        p = np.cross(a, np.eye(3)[int(np.argmin(np.abs(a)))])
-        p /= np.linalg.norm(p)
-        return 2.0 * np.outer(p, p) - np.eye(3)
-    V = np.array([[0, -v[2], v[1]], [v[2], 0, -v[0]], [-v[1], v[0], 0]])      # [3, 3] cross-product matrix of v
-    return np.eye(3) + V + V @ V / (1.0 + c)
+    """Smallest rotation taking direction ``a`` onto direction ``b`` (any lengths > 0): [3] and [3] → [3, 3], or
+    broadcast over leading axes ([..., 3] → [..., 3, 3]); for opposite directions, the half turn about an axis
+    perpendicular to ``a``."""
+    a = np.asarray(a, np.float64)
+    b = np.asarray(b, np.float64)
+    a, b = np.broadcast_arrays(a / np.linalg.norm(a, axis=-1, keepdims=True),
+                               b / np.linalg.norm(b, axis=-1, keepdims=True))           # [..., 3] unit
+    v, c = np.cross(a, b), np.einsum("...i,...i->...", a, b)                           # [..., 3], [...]
+    V = np.zeros(v.shape + (3,))
+    V[..., 0, 1], V[..., 0, 2], V[..., 1, 2] = -v[..., 2], v[..., 1], -v[..., 0]
+    V = V - np.swapaxes(V, -1, -2)                                                      # [..., 3, 3] cross matrices
+    R = np.eye(3) + V + V @ V / np.maximum(1.0 + c, 1e-12)[..., None, None]             # [..., 3, 3]
+    opposite = c < -1.0 + 1e-9
+    if np.any(opposite):                                                                # half turns: rare
+        ao = a[opposite]                                                                # [K, 3]
+        p = np.cross(ao, np.eye(3)[np.argmin(np.abs(ao), axis=-1)])
+        p /= np.linalg.norm(p, axis=-1, keepdims=True)
+        R[opposite] = 2.0 * np.einsum("ki,kj->kij", p, p) - np.eye(3)
+    return R

@@ -16,13 +16,13 @@ from __future__ import annotations
 import numpy as np
 
 from equipose.core.geometry import farthest_point_order
+from equipose.runtime.hypotheses import HALF_TURNS
 from equipose.runtime.refine import icp_multi
 from equipose.runtime.upright import upright_icp
 
 __all__ = ["HALF_TURNS", "FLIP_ICP_ITERS", "FLIP_OBSERVED_POINTS", "FLIP_AMBIGUOUS_MARGIN", "flip_scores",
            "finish_flip"]
 
-HALF_TURNS = {"x": np.diag([1.0, -1.0, -1.0]), "y": np.diag([-1.0, 1.0, -1.0]), "z": np.diag([-1.0, -1.0, 1.0])}
 FLIP_ICP_ITERS = 10
 FLIP_OBSERVED_POINTS = 256                   # observation points used by the template ICP (farthest-point subset)
 FLIP_AMBIGUOUS_MARGIN = 0.1                  # relative gap between the two fits below which front/back stays open

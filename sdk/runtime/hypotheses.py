@@ -18,11 +18,13 @@ import numpy as np
 from equipose.core.errors import InvalidPointsError, MetadataError
 
 __all__ = ["Selection", "apply_calibration", "parse_symmetry", "symmetric_distance_deg", "select_hypothesis",
-           "canonicalise_rotation", "CONFIDENCE_MIN_ANGLE_DEG", "FLIP_MIN_ANGLE_DEG", "AMBIGUOUS_MARGIN"]
+           "canonicalise_rotation", "CONFIDENCE_MIN_ANGLE_DEG", "FLIP_MIN_ANGLE_DEG", "AMBIGUOUS_MARGIN", "HALF_TURNS"]
 
 CONFIDENCE_MIN_ANGLE_DEG = 30.0   # the runner-up for the confidence margin must differ by more than this
 FLIP_MIN_ANGLE_DEG = 150.0        # a "flip" is a hypothesis at least this far (≈ 180°) from the best
 AMBIGUOUS_MARGIN = 0.1            # flip whose relative score margin is below this → ambiguous
+HALF_TURNS = {"x": np.diag([1.0, -1.0, -1.0]), "y": np.diag([-1.0, 1.0, -1.0]),   # half turn about an object axis
+              "z": np.diag([-1.0, -1.0, 1.0])}                                    # (R @ H turns the pose about it)
 _AXES = {"x": 0, "y": 1, "z": 2}
 
 

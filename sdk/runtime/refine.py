@@ -51,6 +51,8 @@ def icp_multi(observed: np.ndarray, template: np.ndarray, R0: np.ndarray, t0: np
     groups = [(k, np.nonzero(which == k)[0]) for k in np.unique(which)]
     trees = {k: tree if (tree is not None and len(Y) == 1) else cKDTree(Y[k]) for k, _ in groups}
     obs_tree = cKDTree(x) if bidirectional else None
+    Yj = np.broadcast_to(Y[0], (J, M, 3)) if len(Y) == 1 else Y[which]         # [J, M, 3] each start's template
+    flat = Y.reshape(-1, 3)                                                    # [T·M, 3]
     if constrain is not None:
         R = constrain(R)
     for it in range(iters + 1):
@@ -60,8 +62,7 @@ def icp_multi(observed: np.ndarray, template: np.ndarray, R0: np.ndarray, t0: np
             d, i = trees[k].query(local[js].reshape(-1, 3))
             d1[js], i1[js] = d.reshape(len(js), N), i.reshape(len(js), N)
         res = (d1 ** 2).mean(1)                                                # [J]
-        Yj = Y[which]                                                          # [J, M, 3] each start's template
-        src, dst = np.take_along_axis(Yj, i1[..., None], 1), np.broadcast_to(x, (J, N, 3))  # template ↔ observed
+        src, dst = flat[which[:, None] * M + i1], np.broadcast_to(x, (J, N, 3))  # template ↔ observed points
         if bidirectional:
             posed = np.einsum("jmk,jik->jmi", Yj, R) + t[:, None]             # [J, M, 3] = R y + t
             d2, i2 = obs_tree.query(posed.reshape(-1, 3))

@@ -19,8 +19,8 @@ import numpy as np
 
 from equipose.core.errors import ConfigError
 from equipose.core.geometry import rotation_between
-from equipose.runtime.hypotheses import (AMBIGUOUS_MARGIN, CONFIDENCE_MIN_ANGLE_DEG, FLIP_MIN_ANGLE_DEG, Selection,
-                                         symmetric_distance_deg)
+from equipose.runtime.hypotheses import (AMBIGUOUS_MARGIN, CONFIDENCE_MIN_ANGLE_DEG, FLIP_MIN_ANGLE_DEG, HALF_TURNS,
+                                         Selection, symmetric_distance_deg)
 from equipose.runtime.refine import icp_multi
 
 __all__ = ["UP_TOLERANCE_DEG", "UP_AXIS", "check_up", "upright_icp", "select_upright", "resolve_plane_up",
@@ -56,16 +56,7 @@ def check_up(up, allow_plane: bool = True):
 
 def _keep_up(R: np.ndarray, up: np.ndarray) -> np.ndarray:
     """[J, 3, 3] rotations turned (smallest turn each) so their up axis is exactly ``up``."""
-    a = R[:, :, UP_AXIS]                                                        # [J, 3] current up axes
-    v, c = np.cross(a, up), a @ up                                              # [J, 3], [J]
-    V = np.zeros((len(R), 3, 3))
-    V[:, 0, 1], V[:, 0, 2], V[:, 1, 2] = -v[:, 2], v[:, 1], -v[:, 0]
-    V = V - V.transpose(0, 2, 1)                                                # [J, 3, 3] cross-product matrices
-    opposite = c < -1.0 + 1e-9
-    turn = np.eye(3) + V + V @ V / np.maximum(1.0 + c, 1e-12)[:, None, None]    # [J, 3, 3]
-    for j in np.nonzero(opposite)[0]:                                           # half turns: rare, done one by one
-        turn[j] = rotation_between(a[j], up)
-    return turn @ R
+    return rotation_between(R[:, :, UP_AXIS], up) @ R
 
 
 def upright_icp(points, template, R0, t0, up, iters: int = COARSE_ITERS + FINE_ITERS, bidirectional: bool = False,
@@ -93,7 +84,7 @@ def select_upright(points, template, R_cat, t_cat, scores, up, *, symmetry: str 
     up = check_up(up, allow_plane=False)
     s = np.asarray(scores, np.float64)
     ang = np.degrees(np.arccos(np.clip(R_cat[:, :, UP_AXIS] @ up, -1.0, 1.0)))   # [A] deg
-    keep = starts                                                               # given starts: the partner only informs
+    keep_azimuth = starts is not None                                           # the partner then only informs
     starts = np.nonzero(ang <= tolerance_deg)[0] if starts is None else np.atleast_1d(np.asarray(starts, int))
     if len(starts) == 0:
         starts = np.array([int(np.argmin(ang))])
@@ -104,8 +95,7 @@ def select_upright(points, template, R_cat, t_cat, scores, up, *, symmetry: str 
     R, t, res = upright_icp(x, y, R0, t0, up, iters=COARSE_ITERS, bidirectional=bidirectional)
     # fine: the FINE_K best coarse poses and the half turn about up of the best (front/back), one batched ICP
     fine = np.argsort(res, kind="stable")[:FINE_K]                              # [F] indices into the starts
-    half = np.diag([-1.0, -1.0, 1.0])                                           # half turn about the object's +z
-    Rf, tf, rf = upright_icp(x, y, np.concatenate([R[fine], (R[fine[0]] @ half)[None]]),
+    Rf, tf, rf = upright_icp(x, y, np.concatenate([R[fine], (R[fine[0]] @ HALF_TURNS["z"])[None]]),
                              np.concatenate([t[fine], t[fine[0]][None]]), up, iters=FINE_ITERS,
                              bidirectional=bidirectional)
     R[fine], t[fine], res[fine] = Rf[:-1], tf[:-1], rf[:-1]
@@ -115,7 +105,7 @@ def select_upright(points, template, R_cat, t_cat, scores, up, *, symmetry: str 
     refined[fine], refined[-1] = True, True
     res = np.where(refined, res, np.maximum(res, rf.max()))                    # coarse-only residuals rank behind
     order = np.argsort(res, kind="stable")
-    b = int(order[0]) if keep is None else int(np.argmin(np.where(np.arange(len(res)) < len(res) - 1, res, np.inf)))
+    b = int(np.argmin(res[:-1])) if keep_azimuth else int(order[0])           # res[-1]: the partner
     dist = symmetric_distance_deg(R[b], R, symmetry)                            # [J + 1] deg to the chosen
     far = [j for j in order if dist[j] > CONFIDENCE_MIN_ANGLE_DEG]
     confidence = 1.0 if not far else float((res[far[0]] - res[b]) / max(res[far[0]], 1e-12))
