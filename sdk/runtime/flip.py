@@ -5,7 +5,10 @@ half turn about one category axis (the metadata's ``axes``: car "z" = front/back
 down); its own predicted canonical shape is nearly symmetric too. The stage fits the observation to a few complete
 category shapes — the teacher network's reconstructions of training clouds, in the category frame, no pose labels —
 from the pose and from each half turn (ICP; with the up prior only the turn about up, rotation held about up) and
-keeps the pose whose best-fitting template fits best. The translation is kept (the turns are about the category
+keeps the pose whose best-fitting template fits best. Every template × candidate pair runs ``FLIP_COARSE_ITERS``
+iterations on ``FLIP_OBSERVED_POINTS`` observation points; then only each candidate's best template goes on to
+``FLIP_ICP_ITERS`` (car-partial, 500 views: flip rate 0.31 → 0.30 against all pairs for 10 iterations on 256
+points, at about half the cost). The translation is kept (the turns are about the category
 origin). ``ambiguous`` is then set when the runner-up fits within ``FLIP_AMBIGUOUS_MARGIN`` of it.
 
 Convention: ``model_points`` [N, 3] model units, centred camera frame; ``translation`` [3] the pose's translation in
@@ -20,11 +23,12 @@ from equipose.runtime.hypotheses import HALF_TURNS
 from equipose.runtime.refine import icp_multi
 from equipose.runtime.upright import upright_icp
 
-__all__ = ["HALF_TURNS", "FLIP_ICP_ITERS", "FLIP_OBSERVED_POINTS", "FLIP_AMBIGUOUS_MARGIN", "flip_scores",
-           "finish_flip"]
+__all__ = ["HALF_TURNS", "FLIP_ICP_ITERS", "FLIP_COARSE_ITERS", "FLIP_OBSERVED_POINTS", "FLIP_AMBIGUOUS_MARGIN",
+           "flip_scores", "finish_flip"]
 
-FLIP_ICP_ITERS = 10
-FLIP_OBSERVED_POINTS = 256                   # observation points used by the template ICP (farthest-point subset)
+FLIP_ICP_ITERS = 10                          # ICP iterations of the fits that decide (coarse ones included)
+FLIP_COARSE_ITERS = 3                        # iterations every template × candidate pair runs before the pruning
+FLIP_OBSERVED_POINTS = 128                   # observation points used by the template ICP (farthest-point subset)
 FLIP_AMBIGUOUS_MARGIN = 0.1                  # relative gap between the two fits below which front/back stays open
 
 
@@ -40,14 +44,22 @@ def flip_scores(model_points, rotation, translation, templates, axes=("z",), up=
     cands = np.stack([rotation] + [rotation @ HALF_TURNS[a] for a in axes])     # [C, 3, 3]
     Y = np.asarray(templates, np.float64)                                       # [T, M, 3]
     C, T = len(cands), len(Y)
+
+    def fit(R0, t0, which, iters):
+        if up is None:
+            return icp_multi(x, Y, R0, t0, iters=iters, bidirectional=not partial, which=which)
+        return upright_icp(x, Y, R0, t0, up, iters=iters, bidirectional=not partial, which=which)
+
+    # coarse: every template × candidate pair; then only each candidate's best template goes on
     R0 = np.tile(cands, (T, 1, 1))                                              # [T·C, 3, 3] every pair at once
     t0 = np.broadcast_to(np.asarray(translation, np.float64), (T * C, 3))
     which = np.repeat(np.arange(T), C)                                          # [T·C] template of each start
-    if up is None:
-        _, _, res = icp_multi(x, Y, R0, t0, iters=FLIP_ICP_ITERS, bidirectional=not partial, which=which)
-    else:
-        _, _, res = upright_icp(x, Y, R0, t0, up, iters=FLIP_ICP_ITERS, bidirectional=not partial, which=which)
-    return cands, res.reshape(T, C).min(0)                                      # [C] best template per candidate
+    coarse = min(FLIP_COARSE_ITERS, FLIP_ICP_ITERS)
+    R1, t1, res = fit(R0, t0, which, coarse)
+    best = res.reshape(T, C).argmin(0)                                          # [C] template kept per candidate
+    keep = best * C + np.arange(C)                                              # [C] rows of (template, candidate)
+    _, _, fine = fit(R1[keep], t1[keep], best, FLIP_ICP_ITERS - coarse)
+    return cands, fine                                                          # [C]
 
 
 def finish_flip(templates, result, model_points, translation, axes=("z",), up=None, partial: bool = True) -> None:
