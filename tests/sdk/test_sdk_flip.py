@@ -34,10 +34,11 @@ def test_finish_flip_turns_a_flipped_pose_back(rng, axis):
     obs = _wedge(rng, 400) @ R_true.T + t                                       # another sample of the same shape
     res = _result(R_true @ HALF_TURNS[axis], t)                                 # the network's flipped answer
     finish_flip(template[None], res, obs, t, axes=(axis,))
-    assert rotation_angle_deg(res.rotation, R_true) < 1e-3
+    assert rotation_angle_deg(res.rotation, R_true) < 3.0                       # the fit to another sample
     assert res.flip_margin > 0.1 and not res.ambiguous
-    finish_flip(template[None], res, obs, t, axes=(axis,))                      # a right pose stays
-    assert rotation_angle_deg(res.rotation, R_true) < 1e-3
+    R_fixed = res.rotation.copy()
+    finish_flip(template[None], res, obs, t, axes=(axis,))                      # a right pose stays as it is
+    assert rotation_angle_deg(res.rotation, R_fixed) < 1e-4
 
 
 def test_finish_flip_with_up_only_turns_about_up(rng):
@@ -46,7 +47,8 @@ def test_finish_flip_with_up_only_turns_about_up(rng):
     obs = _wedge(rng, 400) @ R_true.T
     res = _result(R_true @ HALF_TURNS["z"], np.zeros(3))
     finish_flip(template[None], res, obs, np.zeros(3), axes=("x", "z"), up=R_true[:, 2])
-    assert rotation_angle_deg(res.rotation, R_true) < 1e-3
+    assert rotation_angle_deg(res.rotation, R_true) < 3.0
+    assert res.rotation[:, 2] @ R_true[:, 2] > np.cos(np.radians(1e-3))          # the axis stays held on up
 
 
 def test_model_with_flip_templates(tiny_model, tmp_path, rng):
@@ -66,3 +68,15 @@ def test_model_with_flip_templates(tiny_model, tmp_path, rng):
                 {"axes": ["z"]}):
         with pytest.raises(errors.MetadataError, match="flip_templates"):
             update_metadata(path, flip_templates=bad)
+
+
+def test_template_consensus_drops_turned_reconstructions(rng):
+    from equipose.export.flip_templates import consensus_subset, frame_agreement
+    shapes = np.stack([_wedge(rng, 200) for _ in range(8)])                     # [8, 200, 3] one frame
+    shapes[[2, 5]] = shapes[[2, 5]] @ HALF_TURNS["z"].T                         # two come out turned front/back
+    agree = frame_agreement(shapes, ("z",))
+    assert agree[0, 1] and not agree[0, 2] and agree[2, 5]
+    keep = consensus_subset(agree, 4)
+    assert len(keep) == 4 and not {2, 5} & set(keep.tolist())
+    with pytest.raises(errors.InvalidPointsError):
+        frame_agreement(shapes[0], ("z",))

@@ -8,7 +8,8 @@
 #   SCALE=m/unit  EXPORT_CATEGORY=name  EVAL_MODE=complete|partial (test set; default MODE)  REFINE=0 (no ICP
 #   re-scoring calibration: the file then runs the plain network by default)  REFINE_ITERS=N (ICP iterations of the
 #   re-scoring, default 10; the complete-shape ModelNet models ship with 30)  FLIP_TEACHER=model FLIP_AXES=z
-#   (front/back templates from that complete-shape model, equipose.export.flip_templates, added before evaluation)
+#   FLIP_POOL=24 (front/back templates from that complete-shape model, the 6 of FLIP_POOL reconstructions that agree
+#   on the frame, equipose.export.flip_templates, added before evaluation)
 #   REST_FACET=deg (complete clouds: the rest-facet stage with that tolerance, metadata rest_facet)
 # Writes sdk/models/NAME{,.int8}.onnx and docs/results/models/NAME{,.int8}{.json,.png,.txt} (+ .norefine.txt).
 set -euo pipefail
@@ -32,7 +33,7 @@ u('sdk/models/$F.onnx', rest_facet={'tolerance_deg': float('$REST_FACET')})"
   fi
   if [ -n "${FLIP_TEACHER:-}" ]; then
     ${PY:-.venv/bin/python} -m equipose.export.flip_templates --model "sdk/models/$F.onnx" --teacher "$FLIP_TEACHER" \
-        --category "$CAT" --axes "${FLIP_AXES:-z}"
+        --category "$CAT" --axes "${FLIP_AXES:-z}" --pool "${FLIP_POOL:-24}"
   fi
   $EQ eval --model "sdk/models/$F.onnx" --category "$ECAT" --mode "$EVAL_MODE" --icp-samples "$ICPN" \
       --json "$OUT/$F.json" --plot "$OUT/$F.png" --store-metrics | tee "$OUT/$F.txt"
