@@ -57,7 +57,7 @@ def test_model_with_flip_templates(tiny_model, tmp_path, rng):
     path = tmp_path / "with_templates.onnx"
     shutil.copy(tiny_model, path)
     clouds = [_wedge(rng, 300) * 0.05 for _ in range(4)]
-    tmpl = add_flip_templates(path, tiny_model, clouds, axes=("z",), count=2, points=64, source="test")
+    tmpl = add_flip_templates(path, tiny_model, clouds, axes=("z",), count=2, points=64, pool=4, source="test")
     assert tmpl.shape == (2, 64, 3)
     est = PoseEstimator(path)
     assert est.metadata["flip_templates"]["axes"] == ["z"]
