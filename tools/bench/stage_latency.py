@@ -1,9 +1,13 @@
 """Per-object latency of the geometric stages on real test inputs: the default pipeline of each model, and the up
 prior where asked. Prints median / p90 total and selection (post-processing) milliseconds.
 
-    python tools/bench/stage_latency.py [--runs 100] [--threads 2]
+    python tools/bench/stage_latency.py [--runs 100] [--threads 2] [--bare]
 
-Rows: ``cup-tabletop`` (no stage: the reference), ``car-partial`` (flip stage), ``car-complete`` (rest-facet stage),
+``--bare`` runs the same files with their flip-template and rest-facet stages switched off (metadata cleared in
+memory), which prices those stages.
+
+Rows: ``cup-tabletop`` (no stage: the reference), ``car-partial`` and ``airplane-complete`` (flip stage),
+``car-complete`` (rest-facet stage),
 ``laptop-partial`` with ``up`` given (up prior), ``mug-tabletop`` (handle stage). Inputs are the first ``--runs`` test
 views / clouds of each category (``equipose.train.evaluate.test_dataset``), one object per call, as a camera loop
 would run them.
@@ -20,7 +24,7 @@ from equipose import PoseEstimator
 from equipose.train.evaluate import test_dataset
 
 CASES = (("cup-tabletop", "cup", "partial", False), ("car-partial", "car", "partial", False),
-         ("car-complete", "car", "complete", False), ("laptop-partial", "laptop", "partial", True),
+         ("airplane-complete", "airplane", "complete", False), ("car-complete", "car", "complete", False), ("laptop-partial", "laptop", "partial", True),
          ("mug-tabletop", "mug", "partial", False))
 
 
@@ -30,10 +34,14 @@ def main(argv=None) -> int:
     p.add_argument("--threads", type=int, default=2)
     p.add_argument("--data-root", default=os.environ.get("EQUIPOSE_DATA", "../shared/data"))
     p.add_argument("--cache-dir", default="data_cache")
+    p.add_argument("--bare", action="store_true", help="switch the flip-template and rest-facet stages off")
     a = p.parse_args(argv)
     print(f"{'model':16s} {'stage':12s} {'n':>4s} {'total ms (median / p90)':>24s} {'selection ms (median / p90)':>28s}")
     for name, cat, mode, with_up in CASES:
         est = PoseEstimator(name, threads=a.threads)
+        if a.bare:
+            est.metadata.pop("flip_templates", None)
+            est.metadata.pop("rest_facet", None)
         ds = test_dataset(a.data_root, cat, mode, est.num_points, cache_dir=a.cache_dir)
         samples = [ds.raw(i) for i in range(min(a.runs, len(ds)))]
         est.predict_points(samples[0]["points_m"])                              # warm-up
