@@ -28,7 +28,9 @@ then reports whether the handle was seen (``PoseResult.handle_visible``); ``shap
 symmetry axis from the observed normals (cans and tins, ``equipose.runtime.cylinder``); ``flip_templates`` JSON
 {"points": T×M×3, "axes": ["z"], "source": str}: category-frame shapes (model units) that settle half-turn flips
 about those axes (``equipose.runtime.flip``); ``rest_facet`` JSON {"tolerance_deg": float}: complete-shape models read
-"up" off the cloud's resting hull face (``equipose.runtime.rest_facet``).
+"up" off the cloud's resting hull face (``equipose.runtime.rest_facet``); ``frame_priors`` JSON {"steps": ["mirror",
+"footprint"] (some, in order), "mirror_axis": "x"|"y"|"z", "max_deg": float}: complete-shape models turn the pose onto
+the cloud's mirror plane and footprint rectangle (``equipose.runtime.frame_priors``).
 """
 from __future__ import annotations
 
@@ -117,6 +119,26 @@ def _rest_facet(text, source: str):
     return {"tolerance_deg": tol}
 
 
+def _frame_priors(text, source: str):
+    """``frame_priors`` metadata → {"steps": [str], "mirror_axis": str | None, "max_deg": float} or None."""
+    if not text:
+        return None
+    try:
+        d = json.loads(text)
+        steps, axis, max_deg = [str(x) for x in d["steps"]], d.get("mirror_axis"), float(d.get("max_deg", 20.0))
+    except (ValueError, KeyError, TypeError) as e:
+        raise MetadataError(f"{source}: malformed frame_priors metadata ({e}); re-run "
+                            "'python -m equipose.export.frame_priors'") from None
+    if not steps or any(x not in ("mirror", "footprint") for x in steps):
+        raise MetadataError(f"{source}: frame_priors steps must be a non-empty list of 'mirror' / 'footprint', "
+                            f"got {steps}")
+    if "mirror" in steps and axis not in ("x", "y", "z"):
+        raise MetadataError(f"{source}: frame_priors with a mirror step needs mirror_axis x, y or z, got {axis!r}")
+    if not 0.0 < max_deg <= 45.0:
+        raise MetadataError(f"{source}: frame_priors max_deg must be in (0, 45], got {max_deg}")
+    return {"steps": steps, "mirror_axis": axis, "max_deg": max_deg}
+
+
 def _unit_handle(v, source: str) -> np.ndarray:
     d = np.asarray(v, dtype=np.float64).reshape(3)
     n = float(np.linalg.norm(d))
@@ -185,6 +207,7 @@ def decode_metadata(props: dict, source: str = "model") -> dict:
     out["shape_prior"] = _check_shape_prior(props["shape_prior"], source) if props.get("shape_prior") else None
     out["flip_templates"] = _flip_templates(props.get("flip_templates"), source)
     out["rest_facet"] = _rest_facet(props.get("rest_facet"), source)
+    out["frame_priors"] = _frame_priors(props.get("frame_priors"), source)
     _check_symmetry(out["symmetry"])
     if not (math.isfinite(out["scale"]) and out["scale"] > 0):
         raise MetadataError(f"{source}: scale must be positive, got {out['scale']}")

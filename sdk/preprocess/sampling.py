@@ -31,12 +31,15 @@ class PreparedPoints:
         centre_m: [3] float64 metres, camera frame (subtracted before scaling).
         scale: metres per model unit (from the model metadata).
         order: [N] int64 indices into the metric points that were passed in (FPS order; repeats when P < N).
+        cloud: [P', 3] float32 model units, centred like ``model_points``: every point FPS chose from (the input,
+            thinned when longer than ``max_fps_input``), for stages that want more of the surface than N points.
     Map back: ``x_m = x_model · scale + centre_m`` (points and translations; rotations are unchanged).
     """
     model_points: np.ndarray
     centre_m: np.ndarray
     scale: float
     order: np.ndarray
+    cloud: np.ndarray | None = None
 
     def to_metres(self, x_model: np.ndarray) -> np.ndarray:
         """[..., 3] model units → [..., 3] metres, camera frame."""
@@ -110,4 +113,4 @@ def prepare_points(points_m, num_points: int, scale: float, *, min_points: int =
         raise InvalidPointsError(f"the {P} points hold fewer than {MIN_DISTINCT} distinct positions (repeated points); "
                                  "a pose needs the object's surface — check the crop or the point source")
     return PreparedPoints(model_points=np.ascontiguousarray(qc[idx]), centre_m=centre, scale=float(scale),
-                          order=base[idx])
+                          order=base[idx], cloud=qc)

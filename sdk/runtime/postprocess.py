@@ -12,6 +12,7 @@ import time
 
 import numpy as np
 
+from equipose.runtime.frame_priors import apply_frame_priors
 from equipose.runtime.hypotheses import apply_calibration, canonicalise_rotation, parse_symmetry, select_hypothesis
 from equipose.runtime.refine import refine_hypotheses
 from equipose.runtime.rest_facet import rest_facet_up
@@ -31,7 +32,8 @@ def _nearest_rotation(M) -> np.ndarray:
 def finish_category(est, outputs: dict, b: int, prep, *, prefer=None, prefer_margin: float = 0.0, up=None) -> tuple:
     """Batch item ``b`` → (PoseResult without timings, selection ms). With ``up`` the up prior selects (its own ICP,
     so the re-scoring and the tracking preference are not used); ``result.up`` records it. Models with metadata
-    ``rest_facet`` and no ``up`` take it from the cloud's resting face near the selected pose's up axis."""
+    ``rest_facet`` and no ``up`` take it from the cloud's resting face near the selected pose's up axis; models with
+    ``frame_priors`` then turn the pose onto the cloud's mirror plane / footprint (``result.frame_priors``)."""
     t0 = time.perf_counter()
     R_all = outputs["hypothesis_rotations"][b]                                  # [60, 3, 3]
     t_all = outputs["hypothesis_translations"][b]                               # [60, 3] model units
@@ -57,6 +59,11 @@ def finish_category(est, outputs: dict, b: int, prep, *, prefer=None, prefer_mar
                                          top_k=est.top_k, bidirectional=not est.partial,
                                          starts=[sel.index] if up_source == "rest_facet" else None)
         R = _nearest_rotation(R)
+    turned = None
+    if est.metadata.get("frame_priors") is not None:                           # mirror plane / footprint
+        cloud = prep.model_points if getattr(prep, "cloud", None) is None else prep.cloud
+        R, turned = apply_frame_priors(cloud, R, est.metadata["frame_priors"],
+                                       keep_up=up if up_source == "given" else None)
     t_m = prep.to_metres(t_model)                                               # [3] metres
     canon_obj = canon_cat * est.scale                                           # [M, 3] category frame, metres
     kind, axis, _ = parse_symmetry(est.symmetry)
@@ -65,6 +72,7 @@ def finish_category(est, outputs: dict, b: int, prep, *, prefer=None, prefer_mar
         canonical_shape=canon_obj @ R.T + t_m, canonical_shape_object=canon_obj, hypothesis_index=sel.index,
         top_k=sel.top_k, symmetry=est.symmetry, symmetry_axis=None if kind == "none" else R[:, axis].copy(),
         rotation_canonical=canonicalise_rotation(R, est.symmetry), category=est.category,
-        random_init=est.random_init, up=None if up is None else np.asarray(up, np.float64).copy(), up_source=up_source)
+        random_init=est.random_init, up=None if up is None else np.asarray(up, np.float64).copy(), up_source=up_source,
+        frame_priors=turned)
     apply_stages(est.metadata, res, prep.model_points, t_model, canon_cat, up=up)  # flip, cylinder, handle
     return res, (time.perf_counter() - t0) * 1e3

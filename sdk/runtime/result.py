@@ -45,6 +45,8 @@ class PoseResult:
         flip_margin: models with front/back templates (metadata ``flip_templates``): relative gap between the
             template fits of the pose and of its half turn about up (small = front/back unsure; sets ``ambiguous``
             below 0.1), else None.
+        frame_priors: models with metadata ``frame_priors`` (``equipose.runtime.frame_priors``): degrees each step
+            turned the pose ({"mirror": 0.8, "footprint": -1.2}; None for a step that left it), else None.
     """
     rotation: np.ndarray
     translation: np.ndarray
@@ -74,6 +76,7 @@ class PoseResult:
     up: np.ndarray | None = None
     up_source: str | None = None
     flip_margin: float | None = None
+    frame_priors: dict | None = None
 
     def set_pose(self, rotation, translation):
         """Replace the pose (e.g. after smoothing) and update everything derived from it (shape, symmetry axis)."""
@@ -142,6 +145,8 @@ class PoseResult:
             "up": None if self.up is None else np.round(self.up, 6).tolist(),
             "up_source": self.up_source,
         }
+        if self.frame_priors is not None:
+            d["frame_priors"] = {k: None if v is None else round(float(v), 4) for k, v in self.frame_priors.items()}
         if self.flip_margin is not None:
             d["flip_margin"] = round(float(self.flip_margin), 6)
         if self.handle_visible is not None:

@@ -11,6 +11,8 @@
 #   FLIP_POOL=24 (front/back templates from that complete-shape model, the 6 of FLIP_POOL reconstructions that agree
 #   on the frame, equipose.export.flip_templates, added before evaluation)
 #   REST_FACET=deg (complete clouds: the rest-facet stage with that tolerance, metadata rest_facet)
+#   FRAME_PRIORS=auto|none|steps (complete clouds: mirror plane / footprint steps, chosen on training clouds when
+#   auto; equipose.export.frame_priors, metadata frame_priors)
 # Writes sdk/models/NAME{,.int8}.onnx and docs/results/models/NAME{,.int8}{.json,.png,.txt} (+ .norefine.txt).
 set -euo pipefail
 NAME=$1; RUN=$2; CAT=$3; MODE=$4; NUM=${5:-512}; ICPN=${6:-100}
@@ -34,6 +36,10 @@ u('sdk/models/$F.onnx', rest_facet={'tolerance_deg': float('$REST_FACET')})"
   if [ -n "${FLIP_TEACHER:-}" ]; then
     ${PY:-.venv/bin/python} -m equipose.export.flip_templates --model "sdk/models/$F.onnx" --teacher "$FLIP_TEACHER" \
         --category "$CAT" --axes "${FLIP_AXES:-z}" --pool "${FLIP_POOL:-24}"
+  fi
+  if [ -n "${FRAME_PRIORS:-}" ]; then
+    ${PY:-.venv/bin/python} -m equipose.export.frame_priors --model "sdk/models/$F.onnx" --category "$CAT" \
+        --steps "$FRAME_PRIORS"
   fi
   $EQ eval --model "sdk/models/$F.onnx" --category "$ECAT" --mode "$EVAL_MODE" --icp-samples "$ICPN" \
       --json "$OUT/$F.json" --plot "$OUT/$F.png" --store-metrics | tee "$OUT/$F.txt"

@@ -1,0 +1,123 @@
+"""Frame priors of complete-shape models (metadata ``frame_priors``): the pose turned onto the object's own geometry.
+
+Furniture and vehicles are built around a mirror plane (left/right) and stand on a footprint whose outline is square
+with the object (a sofa's back, a car's sides). A category frame that has its mirror plane normal to one axis and its
+footprint's minimum-area rectangle along x and y is where such a model's calibrated frame points on average, but the
+self-supervised frame of one instance can sit a few degrees off (the learned frame varies from shape to shape). The
+steps, in the order the metadata lists them, turn the pose onto the cloud's own geometry within a bound:
+
+- ``"mirror"``: the cloud's mirror plane nearest to the pose's ``mirror_axis`` (``mirror_plane``, a reflective ICP);
+  the pose turns by the smallest rotation taking that axis onto the plane's normal;
+- ``"footprint"``: the minimum-area rectangle of the cloud projected along the pose's +z (opencv ``minAreaRect``); the
+  pose turns about +z onto the rectangle's nearest side.
+
+A step whose answer lies farther than ``max_deg`` from the pose leaves it as it is (an asymmetric instance, an L-shaped
+sofa). Label-free at run time; which steps (and mirror axis) a model uses is chosen once, on training clouds, by
+``python -m equipose.export.frame_priors``. For complete clouds: a single view holds neither the mirror image of what
+it shows nor the whole footprint (measured: worse on every partial model).
+
+Convention: ``points`` [P, 3] the object's cloud, centred, any units, camera frame; ``rotation`` [3, 3] category →
+camera (column vectors); angles in degrees.
+"""
+from __future__ import annotations
+
+import cv2
+import numpy as np
+from scipy.spatial import cKDTree
+
+from equipose.core.errors import InvalidPointsError
+from equipose.core.geometry import rotation_between
+
+__all__ = ["FRAME_PRIOR_STEPS", "MAX_DEG", "mirror_plane", "footprint_yaw", "apply_frame_priors"]
+
+FRAME_PRIOR_STEPS = ("mirror", "footprint")
+MAX_DEG = 20.0                  # default bound on how far a step may turn the pose
+_MIRROR_ITERS = 15
+_MIRROR_TRIM = 0.8              # pairs kept per iteration (the closest): asymmetric parts drop out
+_AXES = {"x": 0, "y": 1, "z": 2}
+
+
+def _check(points, rotation) -> tuple:
+    P = np.asarray(points, np.float64)
+    R = np.asarray(rotation, np.float64)
+    if P.ndim != 2 or P.shape[1] != 3 or len(P) < 8 or not np.all(np.isfinite(P)):
+        raise InvalidPointsError(f"frame priors need a finite [P ≥ 8, 3] cloud, got {np.shape(points)}")
+    if R.shape != (3, 3) or not np.all(np.isfinite(R)):
+        raise InvalidPointsError(f"frame priors need a finite [3, 3] rotation, got {np.shape(rotation)}")
+    return P, R
+
+
+def mirror_plane(points, normal, max_deg: float = MAX_DEG, iters: int = _MIRROR_ITERS) -> tuple:
+    """Mirror plane of ``points`` near the plane through their centroid with unit normal ``normal`` [3].
+
+    Each iteration reflects the cloud, pairs every point with its nearest neighbour among the reflections' sources
+    (the closest ``_MIRROR_TRIM`` of pairs), and takes the new normal as the dominant direction of the pair differences
+    and the offset from their midpoints. Stops before a step that would leave ``max_deg`` of ``normal``.
+    Returns (unit normal [3] signed like ``normal``, offset d with the plane n·x = d, mean squared reflection
+    residual).
+    """
+    P = np.asarray(points, np.float64)                                       # [P, 3]
+    n0 = np.asarray(normal, np.float64) / np.linalg.norm(normal)
+    tree = cKDTree(P)
+    n, d = n0, float(P.mean(0) @ n0)
+    cos_max = np.cos(np.radians(max_deg))
+    for _ in range(iters):
+        reflected = P - 2.0 * (P @ n - d)[:, None] * n                       # [P, 3]
+        dist, j = tree.query(reflected)
+        keep = dist <= np.quantile(dist, _MIRROR_TRIM)
+        a, b = P[keep], P[j[keep]]                                           # mirror pairs a ↔ b
+        diff = a - b                                                         # [K, 3] along the normal
+        _, V = np.linalg.eigh(diff.T @ diff)
+        cand = V[:, 2] * np.sign(V[:, 2] @ n or 1.0)                         # dominant direction, signed like n
+        if cand @ n0 < cos_max:
+            break
+        n, d = cand, float(((a + b) / 2.0).mean(0) @ cand)
+    residual = float(np.mean(tree.query(P - 2.0 * (P @ n - d)[:, None] * n)[0] ** 2))
+    return n, d, residual
+
+
+def footprint_yaw(points, rotation, max_deg: float = MAX_DEG):
+    """Turn about the pose's +z onto the nearest side of the cloud's minimum-area footprint rectangle.
+
+    Returns (rotation [3, 3], turn in degrees), or (``rotation``, None) when the nearest side lies more than
+    ``max_deg`` away.
+    """
+    P, R = _check(points, rotation)
+    plane = np.stack([P @ R[:, 0], P @ R[:, 1]], axis=1).astype(np.float32)    # [P, 2] footprint in the pose's x, y
+    _, _, angle = cv2.minAreaRect(plane)
+    turn = (float(angle) + 45.0) % 90.0 - 45.0                                # nearest side, [-45, 45)
+    if abs(turn) > max_deg:
+        return R, None
+    c, s = np.cos(np.radians(turn)), np.sin(np.radians(turn))
+    Rz = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    return R @ Rz, turn
+
+
+def apply_frame_priors(points, rotation, spec: dict, keep_up=None) -> tuple:
+    """Run the steps of ``spec`` ({"steps": [...], "mirror_axis": "x"|"y"|"z", "max_deg": float}) in order.
+
+    ``keep_up``: a camera-frame unit direction the pose's +z must keep (the caller's up prior): the mirror step then
+    turns only about it. Returns (rotation [3, 3], {step: degrees turned, or None where the step left the pose}).
+    """
+    P, R = _check(points, rotation)
+    max_deg = float(spec.get("max_deg", MAX_DEG))
+    turned = {}
+    for step in spec["steps"]:
+        if step == "footprint":
+            R, turned[step] = footprint_yaw(P, R, max_deg)
+        elif step == "mirror":
+            a = _AXES[spec["mirror_axis"]]
+            n, _, _ = mirror_plane(P, R[:, a], max_deg)
+            if keep_up is not None:
+                up = np.asarray(keep_up, np.float64)
+                n = n - (n @ up) * up
+                if a == 2 or np.linalg.norm(n) < 1e-9:                       # nothing to turn about up
+                    turned[step] = None
+                    continue
+            deg = float(np.degrees(np.arccos(np.clip(n @ R[:, a] / np.linalg.norm(n), -1.0, 1.0))))
+            R = rotation_between(R[:, a], n) @ R
+            turned[step] = deg
+        else:
+            raise InvalidPointsError(f"unknown frame-prior step {step!r}; use {', '.join(FRAME_PRIOR_STEPS)}")
+    U, _, Vt = np.linalg.svd(R)                                               # exact SO(3)
+    return U @ np.diag([1.0, 1.0, np.linalg.det(U @ Vt)]) @ Vt, turned
