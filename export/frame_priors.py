@@ -19,26 +19,13 @@ import numpy as np
 
 from equipose.core.errors import ConfigError
 from equipose.core.geometry import random_rotations
+from equipose.runtime.frame_priors import apply_frame_priors, parse_steps
 
 MIN_GAIN_DEG = 0.05
-__all__ = ["CANDIDATES", "MIN_GAIN_DEG", "parse_steps", "score_candidates", "choose_frame_priors", "main"]
+__all__ = ["CANDIDATES", "MIN_GAIN_DEG", "score_candidates", "choose_frame_priors", "main"]
 
 CANDIDATES = ["none", "footprint"] + [f"mirror:{a}" for a in "xyz"] + \
     [f"footprint,mirror:{a}" for a in "xyz"] + [f"mirror:{a},footprint" for a in "xyz"]
-
-
-def parse_steps(text: str, max_deg: float) -> dict | None:
-    """"footprint,mirror:y" → the metadata dict ({"steps", "mirror_axis", "max_deg"}); "none" → None."""
-    if text == "none":
-        return None
-    steps, axis = [], None
-    for part in text.split(","):
-        name, _, ax = part.strip().partition(":")
-        if name not in ("mirror", "footprint") or (name == "mirror") != bool(ax) or (ax and ax not in "xyz"):
-            raise ConfigError(f"frame-prior steps: {part!r} is not 'footprint' or 'mirror:<x|y|z>'")
-        steps.append(name)
-        axis = ax or axis
-    return {"steps": steps, "mirror_axis": axis, "max_deg": float(max_deg)}
 
 
 def _errors_deg(R, R_gt) -> np.ndarray:
@@ -54,7 +41,6 @@ def score_candidates(model, clouds, *, candidates=CANDIDATES, max_deg: float = 2
 
     from equipose.preprocess import prepare_points
     from equipose.runtime.estimator import PoseEstimator
-    from equipose.runtime.frame_priors import apply_frame_priors
     est = PoseEstimator(model)
     if est.symmetry != "none":
         raise ConfigError(f"{est.category}: frame priors are for categories without a symmetry axis "

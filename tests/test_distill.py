@@ -116,6 +116,34 @@ def test_teacher_targets_follow_the_render_pose(tmp_path, data_root):
         teacher_targets(student, ds, clouds, refine=0)
 
 
+def test_teacher_targets_through_frame_priors(tmp_path, data_root):
+    """Frame priors turn each instance's pose and its canonical shape together: the posed shape stays put."""
+    from equipose.train.checkpoint import save_checkpoint
+    from equipose.train.data import make_dataset
+    from equipose.train.distill import complete_clouds
+    from equipose.train.model import EquiPoseNet
+    torch.manual_seed(0)
+    teacher = tmp_path / "teacher.pt"
+    save_checkpoint(teacher, EquiPoseNet("tiny", partial=False), category="chair", scale=2.0, step=0)
+    ds = make_dataset(data_root, "chair", "partial", "train", 256, train=True, limit=2, cache_dir=tmp_path,
+                      render_opts={"views": 2})
+    clouds = complete_clouds(data_root, "chair", "train", limit=2)
+    with pytest.raises(ConfigError, match="calibration"):
+        teacher_targets(teacher, ds, clouds, refine=0, frame_priors="footprint")
+    save_checkpoint(teacher, EquiPoseNet("tiny", partial=False), category="chair", scale=2.0, step=0,
+                    calibration={"rotation": np.eye(3).tolist(), "translation": [0.0, 0.0, 0.0]})
+    plain = teacher_targets(teacher, ds, clouds, refine=0, cache_file=tmp_path / "t.npz", log=lambda *_: None)
+    turned = teacher_targets(teacher, ds, clouds, refine=0, cache_file=tmp_path / "t.npz", log=lambda *_: None,
+                             frame_priors="rest,footprint,mirror:x")                   # a new cache key
+    assert not np.allclose(plain["rotations"], turned["rotations"])
+    for v in range(len(ds)):
+        k = ds.instance[v]
+        np.testing.assert_allclose(plain["shapes"][k] @ plain["rotations"][v].T,
+                                   turned["shapes"][k] @ turned["rotations"][v].T, atol=1e-4)
+    with pytest.raises(ConfigError, match="frame-prior"):
+        teacher_targets(teacher, ds, clouds, refine=0, frame_priors="spin")
+
+
 def test_cli_distills_a_partial_model(tmp_path, data_root, capsys):
     teacher_run, run = tmp_path / "teacher", tmp_path / "student"
     common = ["--category", "airplane", "--data-root", str(data_root), "--preset", "tiny", "--batch-size", "2",

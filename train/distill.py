@@ -41,7 +41,7 @@ def complete_clouds(root, category: str, split: str, limit: int | None = None) -
 
 @torch.no_grad()
 def teacher_targets(teacher_path, dataset, clouds: list, refine: int = 5, batch_size: int = 32,
-                    cache_file=None, log=print) -> dict:
+                    cache_file=None, frame_priors: str = "", log=print) -> dict:
     """Teacher pose for every view of ``dataset`` (a ``RenderedPartial``) and canonical shape for every instance.
 
     Returns ``{"rotations" [V, 3, 3], "translations" [V, 3] (model units, camera frame of each view),
@@ -51,15 +51,23 @@ def teacher_targets(teacher_path, dataset, clouds: list, refine: int = 5, batch_
     is carried to every view by that view's render pose (R_view · R_teacher, R_view · c + t_view) — exact for the
     ICP-refined pose, and every view of an instance shares one frame. ``refine`` > 0: the teacher's ``refine`` best
     hypotheses are ICP-refined against its own canonical shape and re-ranked (``equipose.runtime.refine``), as the shipped
-    complete models run. Cached in ``cache_file`` (keyed by the teacher file, the views and ``refine``).
+    complete models run. ``frame_priors`` (e.g. "footprint,mirror:x"): each instance's pose then goes through those
+    steps on its complete cloud in the teacher's calibrated category frame (``equipose.runtime.frame_priors``), and
+    its canonical shape turns with it (the posed shape stays where it was). Cached in ``cache_file`` (keyed by the
+    teacher file, the views, ``refine`` and ``frame_priors``).
     """
     from equipose.core.geometry import farthest_point_order
+    from equipose.runtime.frame_priors import apply_frame_priors, parse_steps
     from equipose.runtime.refine import refine_hypotheses
     teacher, ck = model_from_checkpoint(teacher_path)
+    priors = parse_steps(frame_priors)
+    if priors is not None and not ck.get("calibration"):
+        raise ConfigError(f"--teacher {teacher_path}: frame priors need the teacher's calibration (equipose calibrate)")
     if teacher.partial:
         raise ConfigError(f"--teacher {teacher_path}: the teacher must be a complete-shape model (mode complete)")
     key = json.dumps({"teacher": str(pathlib.Path(teacher_path).resolve()), "teacher_step": ck.get("step"),
-                      "views": len(dataset), "instances": len(clouds), "refine": refine, "v": 3})
+                      "views": len(dataset), "instances": len(clouds), "refine": refine, "v": 3,
+                      **({"frame_priors": frame_priors} if priors is not None else {})})
     if cache_file is not None and pathlib.Path(cache_file).is_file():
         z = np.load(cache_file)
         if str(z["key"]) == key:
@@ -85,6 +93,13 @@ def teacher_targets(teacher_path, dataset, clouds: list, refine: int = 5, batch_
                 r, tt, s = refine_hypotheses(inputs[b + j], S[j], r, tt, s, k=refine, iters=10, bidirectional=True)
             a = int(np.argmin(s))
             R_inst[b + j], t_inst[b + j] = r[a], tt[a]
+            if priors is not None:                                                   # learned → category → learned
+                dR = np.asarray(ck["calibration"]["rotation"], np.float64)
+                c = clouds[b + j] / dataset.scale
+                R_cat, _ = apply_frame_priors(c - c.mean(0), r[a] @ dR.T, priors)
+                Q = r[a].T @ (R_cat @ dR)                                            # learned-frame turn
+                R_inst[b + j] = r[a] @ Q
+                S[j] = S[j] @ Q                                                      # rows: Qᵀ y
         shapes[b:b + len(S)] = S
     inst = np.asarray(dataset.instance)                                               # [V]
     Rv = np.asarray(dataset.R, np.float64)                                            # [V, 3, 3]

@@ -66,6 +66,8 @@ class TrainConfig:
     freeze: str = ""                      # comma-separated submodules kept fixed: blocks, pose_head, inv_head, decoder
     teacher: str = ""                     # partial only: distil from this complete-shape checkpoint (train/distill.py)
     teacher_refine: int = 5               # teacher's ICP re-scoring of its k best hypotheses (0 = plain network)
+    teacher_priors: str = ""              # teacher's poses through these frame priors, e.g. "footprint,mirror:x"
+                                          # (equipose.runtime.frame_priors; its calibrated category frame)
     select_weight: float = 0.0            # distillation: weight of the hypothesis-selection cross-entropy
     symmetry_weight: float = 0.0          # complete, symmetric category: weight of model.axial_symmetry_loss
     minutes: float = 0.0                  # > 0: stop once the training steps (validation excluded) took this many
@@ -89,6 +91,11 @@ class TrainConfig:
             raise ConfigError(f"mode must be complete or partial, got {cfg.mode!r}")
         if cfg.teacher and cfg.mode != "partial":
             raise ConfigError("--teacher distils a partial-view model: use it with --mode partial")
+        if cfg.teacher_priors:
+            from equipose.runtime.frame_priors import parse_steps
+            parse_steps(cfg.teacher_priors)                                  # ConfigError on a bad step list
+            if not cfg.teacher:
+                raise ConfigError("--teacher-priors applies to the teacher's poses: give --teacher as well")
         if cfg.batch_size < 1 or cfg.steps < 0:
             raise ConfigError("batch_size must be ≥ 1 and steps ≥ 0")
         return cfg
@@ -219,6 +226,7 @@ def train(cfg: TrainConfig, resume: bool = False, log=print) -> pathlib.Path:
             raise ConfigError(f"teacher: {len(clouds)} complete clouds for {int(train_ds.instance.max()) + 1} instances")
         out.mkdir(parents=True, exist_ok=True)
         tt = teacher_targets(cfg.teacher, train_ds, clouds, refine=cfg.teacher_refine, cache_file=out / "teacher.npz",
+                             frame_priors=cfg.teacher_priors,
                              log=log if rank == 0 else (lambda *_: None))
         targets = {k: torch.from_numpy(np.asarray(v, np.int64 if k == "instance" else np.float32)).to(device)
                    for k, v in tt.items()}

@@ -40,6 +40,9 @@ def add_arguments(p) -> None:
                    "(its pose and canonical shape on the complete cloud of each rendered view; no pose labels)")
     p.add_argument("--teacher-refine", dest="teacher_refine", type=int,
                    help="teacher's ICP re-scoring of its k best hypotheses (default 5; 0 = plain network)")
+    p.add_argument("--teacher-priors", dest="teacher_priors",
+                   help="distillation: pass the teacher's poses through these frame priors (mirror plane / footprint "
+                   "of each complete training cloud, equipose.runtime.frame_priors), e.g. 'footprint,mirror:x'")
     p.add_argument("--select-weight", dest="select_weight", type=float,
                    help="distillation: weight of the cross-entropy that makes the student's own score pick the best "
                    "hypothesis (default 0)")

@@ -28,7 +28,7 @@ then reports whether the handle was seen (``PoseResult.handle_visible``); ``shap
 symmetry axis from the observed normals (cans and tins, ``equipose.runtime.cylinder``); ``flip_templates`` JSON
 {"points": T×M×3, "axes": ["z"], "source": str}: category-frame shapes (model units) that settle half-turn flips
 about those axes (``equipose.runtime.flip``); ``rest_facet`` JSON {"tolerance_deg": float}: complete-shape models read
-"up" off the cloud's resting hull face (``equipose.runtime.rest_facet``); ``frame_priors`` JSON {"steps": ["mirror",
+"up" off the cloud's resting hull face (``equipose.runtime.rest_facet``); ``frame_priors`` JSON {"steps": ["rest", "mirror",
 "footprint"] (some, in order), "mirror_axis": "x"|"y"|"z", "max_deg": float}: complete-shape models turn the pose onto
 the cloud's mirror plane and footprint rectangle (``equipose.runtime.frame_priors``).
 """
@@ -129,9 +129,9 @@ def _frame_priors(text, source: str):
     except (ValueError, KeyError, TypeError) as e:
         raise MetadataError(f"{source}: malformed frame_priors metadata ({e}); re-run "
                             "'python -m equipose.export.frame_priors'") from None
-    if not steps or any(x not in ("mirror", "footprint") for x in steps):
-        raise MetadataError(f"{source}: frame_priors steps must be a non-empty list of 'mirror' / 'footprint', "
-                            f"got {steps}")
+    if not steps or any(x not in ("rest", "mirror", "footprint") for x in steps):
+        raise MetadataError(f"{source}: frame_priors steps must be a non-empty list of 'rest' / 'mirror' / "
+                            f"'footprint', got {steps}")
     if "mirror" in steps and axis not in ("x", "y", "z"):
         raise MetadataError(f"{source}: frame_priors with a mirror step needs mirror_axis x, y or z, got {axis!r}")
     if not 0.0 < max_deg <= 45.0:

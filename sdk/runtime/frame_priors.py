@@ -9,7 +9,10 @@ steps, in the order the metadata lists them, turn the pose onto the cloud's own 
 - ``"mirror"``: the cloud's mirror plane nearest to the pose's ``mirror_axis`` (``mirror_plane``, a reflective ICP);
   the pose turns by the smallest rotation taking that axis onto the plane's normal;
 - ``"footprint"``: the minimum-area rectangle of the cloud projected along the pose's +z (opencv ``minAreaRect``); the
-  pose turns about +z onto the rectangle's nearest side.
+  pose turns about +z onto the rectangle's nearest side;
+- ``"rest"``: the pose's +z turns onto the up of the hull face the cloud rests on (``equipose.runtime.rest_facet``,
+  within ``max_deg``) by the smallest rotation (models with metadata ``rest_facet`` run the fuller rest-facet stage
+  before these steps; this step serves where no network outputs are at hand, e.g. a teacher's distillation targets).
 
 A step whose answer lies farther than ``max_deg`` from the pose leaves it as it is (an asymmetric instance, an L-shaped
 sofa). Label-free at run time; which steps (and mirror axis) a model uses is chosen once, on training clouds, by
@@ -25,16 +28,33 @@ import cv2
 import numpy as np
 from scipy.spatial import cKDTree
 
-from equipose.core.errors import InvalidPointsError
+from equipose.core.errors import ConfigError, InvalidPointsError
 from equipose.core.geometry import rotation_between
+from equipose.runtime.rest_facet import rest_facet_up
 
-__all__ = ["FRAME_PRIOR_STEPS", "MAX_DEG", "mirror_plane", "footprint_yaw", "apply_frame_priors"]
+__all__ = ["FRAME_PRIOR_STEPS", "MAX_DEG", "parse_steps", "mirror_plane", "footprint_yaw", "apply_frame_priors"]
 
-FRAME_PRIOR_STEPS = ("mirror", "footprint")
+FRAME_PRIOR_STEPS = ("rest", "mirror", "footprint")
 MAX_DEG = 20.0                  # default bound on how far a step may turn the pose
 _MIRROR_ITERS = 15
 _MIRROR_TRIM = 0.8              # pairs kept per iteration (the closest): asymmetric parts drop out
 _AXES = {"x": 0, "y": 1, "z": 2}
+
+
+def parse_steps(text: str, max_deg: float = MAX_DEG) -> dict | None:
+    """"footprint,mirror:y" → the metadata dict ({"steps", "mirror_axis", "max_deg"}); "none" or "" → None.
+    Raises ``ConfigError`` for an unknown step or a mirror step without its axis."""
+    if text in ("none", ""):
+        return None
+    steps, axis = [], None
+    for part in text.split(","):
+        name, _, ax = part.strip().partition(":")
+        if name not in FRAME_PRIOR_STEPS or (name == "mirror") != bool(ax) or (ax and ax not in _AXES):
+            raise ConfigError(f"frame-prior steps: {part!r} is not 'rest', 'footprint' or 'mirror:<x|y|z>' "
+                              "(e.g. 'footprint,mirror:x')")
+        steps.append(name)
+        axis = ax or axis
+    return {"steps": steps, "mirror_axis": axis, "max_deg": float(max_deg)}
 
 
 def _check(points, rotation) -> tuple:
@@ -105,6 +125,11 @@ def apply_frame_priors(points, rotation, spec: dict, keep_up=None) -> tuple:
     for step in spec["steps"]:
         if step == "footprint":
             R, turned[step] = footprint_yaw(P, R, max_deg)
+        elif step == "rest":
+            up = rest_facet_up(P, R[:, 2], max_deg)
+            turned[step] = None if up is None else float(np.degrees(np.arccos(np.clip(up @ R[:, 2], -1.0, 1.0))))
+            if up is not None:
+                R = rotation_between(R[:, 2], up) @ R
         elif step == "mirror":
             a = _AXES[spec["mirror_axis"]]
             n, _, _ = mirror_plane(P, R[:, a], max_deg)

@@ -69,6 +69,13 @@ def test_both_steps_and_the_kept_up(posed):
     np.testing.assert_allclose(kept[:, 2], off[:, 2], atol=1e-9)                # the caller's up is held exactly
 
 
+def test_rest_step_stands_the_pose_on_its_base(posed):
+    R, pts = posed
+    off = R @ Rotation.from_euler("x", 8, degrees=True).as_matrix()           # up tilted 8°
+    turned, steps = apply_frame_priors(pts, off, {"steps": ["rest"], "max_deg": 20.0})
+    assert np.degrees(np.arccos(min(1.0, turned[:, 2] @ R[:, 2]))) < 0.5 and 7.0 < steps["rest"] < 9.0
+
+
 def test_bad_inputs():
     with pytest.raises(errors.InvalidPointsError):
         footprint_yaw(np.zeros((3, 3)), np.eye(3))
@@ -94,8 +101,10 @@ def test_model_metadata(tiny_model, tmp_path, rng):
 
 
 def test_choice_of_steps():
-    from equipose.export.frame_priors import choose_frame_priors, parse_steps
-    assert parse_steps("none", 20.0) is None
+    from equipose.export.frame_priors import choose_frame_priors
+    from equipose.runtime.frame_priors import parse_steps
+    assert parse_steps("none", 20.0) is None and parse_steps("") is None
+    assert parse_steps("rest,footprint")["steps"] == ["rest", "footprint"]
     assert parse_steps("footprint,mirror:y", 15.0) == {"steps": ["footprint", "mirror"], "mirror_axis": "y",
                                                        "max_deg": 15.0}
     for bad in ("mirror", "mirror:w", "spin", "footprint:x"):
