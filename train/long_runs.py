@@ -215,6 +215,8 @@ def main(argv=None) -> int:
     for p in (s, r, o, a, ap):
         p.add_argument("--state-dir", default=str(STATE_DIR)) if p is not ap else None
     args = ap.parse_args(argv)
+    import signal
+    signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))       # a stopped lane still restores config.json (finally)
     state = pathlib.Path(getattr(args, "state_dir", STATE_DIR))
     if args.cmd == "seed":
         for n in args.names:
