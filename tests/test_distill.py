@@ -84,18 +84,23 @@ def test_selection_term_prefers_the_best_hypothesis():
     assert pg["select"] < pb["select"]
 
 
-def test_teacher_targets_follow_the_render_pose(tmp_path, data_root):
-    """Every view's target is the teacher's object-frame pose carried by that view's render pose."""
+def _teacher_and_views(tmp_path, data_root, category: str, limit: int, **ckpt):
+    """A random tiny complete-shape teacher checkpoint, rendered training views (2 each) and complete clouds."""
     from equipose.train.checkpoint import save_checkpoint
     from equipose.train.data import make_dataset
     from equipose.train.distill import complete_clouds
     from equipose.train.model import EquiPoseNet
     torch.manual_seed(0)
     teacher = tmp_path / "teacher.pt"
-    save_checkpoint(teacher, EquiPoseNet("tiny", partial=False), category="airplane", scale=2.0, step=0)
-    ds = make_dataset(data_root, "airplane", "partial", "train", 256, train=True, limit=3, cache_dir=tmp_path,
+    save_checkpoint(teacher, EquiPoseNet("tiny", partial=False), category=category, scale=2.0, step=0, **ckpt)
+    ds = make_dataset(data_root, category, "partial", "train", 256, train=True, limit=limit, cache_dir=tmp_path,
                       render_opts={"views": 2})
-    clouds = complete_clouds(data_root, "airplane", "train", limit=3)
+    return teacher, ds, complete_clouds(data_root, category, "train", limit=limit)
+
+
+def test_teacher_targets_follow_the_render_pose(tmp_path, data_root):
+    """Every view's target is the teacher's object-frame pose carried by that view's render pose."""
+    teacher, ds, clouds = _teacher_and_views(tmp_path, data_root, "airplane", 3)
     tt = teacher_targets(teacher, ds, clouds, refine=2, cache_file=tmp_path / "t.npz", log=lambda *_: None)
     V = len(ds)
     assert tt["rotations"].shape == (V, 3, 3) and tt["translations"].shape == (V, 3)
@@ -110,6 +115,8 @@ def test_teacher_targets_follow_the_render_pose(tmp_path, data_root):
     assert np.allclose(rel_t, rel_r, atol=1e-5)
     again = teacher_targets(teacher, ds, clouds, refine=2, cache_file=tmp_path / "t.npz", log=lambda *_: None)
     assert np.array_equal(again["rotations"], tt["rotations"])                   # cached
+    from equipose.train.checkpoint import save_checkpoint
+    from equipose.train.model import EquiPoseNet
     with pytest.raises(ConfigError, match="complete-shape"):
         student = tmp_path / "student.pt"
         save_checkpoint(student, EquiPoseNet("tiny", partial=True), category="airplane", scale=2.0, step=0)
@@ -118,20 +125,11 @@ def test_teacher_targets_follow_the_render_pose(tmp_path, data_root):
 
 def test_teacher_targets_through_frame_priors(tmp_path, data_root):
     """Frame priors turn each instance's pose and its canonical shape together: the posed shape stays put."""
-    from equipose.train.checkpoint import save_checkpoint
-    from equipose.train.data import make_dataset
-    from equipose.train.distill import complete_clouds
-    from equipose.train.model import EquiPoseNet
-    torch.manual_seed(0)
-    teacher = tmp_path / "teacher.pt"
-    save_checkpoint(teacher, EquiPoseNet("tiny", partial=False), category="chair", scale=2.0, step=0)
-    ds = make_dataset(data_root, "chair", "partial", "train", 256, train=True, limit=2, cache_dir=tmp_path,
-                      render_opts={"views": 2})
-    clouds = complete_clouds(data_root, "chair", "train", limit=2)
+    teacher, ds, clouds = _teacher_and_views(tmp_path, data_root, "chair", 2)
     with pytest.raises(ConfigError, match="calibration"):
         teacher_targets(teacher, ds, clouds, refine=0, frame_priors="footprint")
-    save_checkpoint(teacher, EquiPoseNet("tiny", partial=False), category="chair", scale=2.0, step=0,
-                    calibration={"rotation": np.eye(3).tolist(), "translation": [0.0, 0.0, 0.0]})
+    teacher, ds, clouds = _teacher_and_views(tmp_path, data_root, "chair", 2, calibration={
+        "rotation": np.eye(3).tolist(), "translation": [0.0, 0.0, 0.0]})
     plain = teacher_targets(teacher, ds, clouds, refine=0, cache_file=tmp_path / "t.npz", log=lambda *_: None)
     turned = teacher_targets(teacher, ds, clouds, refine=0, cache_file=tmp_path / "t.npz", log=lambda *_: None,
                              frame_priors="rest,footprint,mirror:x")                   # a new cache key

@@ -91,11 +91,8 @@ class TrainConfig:
             raise ConfigError(f"mode must be complete or partial, got {cfg.mode!r}")
         if cfg.teacher and cfg.mode != "partial":
             raise ConfigError("--teacher distils a partial-view model: use it with --mode partial")
-        if cfg.teacher_priors:
-            from equipose.runtime.frame_priors import parse_steps
-            parse_steps(cfg.teacher_priors)                                  # ConfigError on a bad step list
-            if not cfg.teacher:
-                raise ConfigError("--teacher-priors applies to the teacher's poses: give --teacher as well")
+        if cfg.teacher_priors and not cfg.teacher:                          # (the steps are checked by distill)
+            raise ConfigError("--teacher-priors applies to the teacher's poses: give --teacher as well")
         if cfg.batch_size < 1 or cfg.steps < 0:
             raise ConfigError("batch_size must be ≥ 1 and steps ≥ 0")
         return cfg
