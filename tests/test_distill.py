@@ -142,6 +142,20 @@ def test_teacher_targets_through_frame_priors(tmp_path, data_root):
         teacher_targets(teacher, ds, clouds, refine=0, frame_priors="spin")
 
 
+def test_teacher_targets_through_the_flip_stage(tmp_path, data_root):
+    """``flip_model``: a shipped model's flip templates turn instances whose half turn fits them better."""
+    teacher, ds, clouds = _teacher_and_views(tmp_path, data_root, "airplane", 2, calibration={
+        "rotation": np.eye(3).tolist(), "translation": [0.0, 0.0, 0.0]})
+    plain = teacher_targets(teacher, ds, clouds, refine=0, log=lambda *_: None)
+    flip = teacher_targets(teacher, ds, clouds, refine=0, flip_model="airplane-complete", log=lambda *_: None)
+    for v in range(len(ds)):
+        k = ds.instance[v]
+        np.testing.assert_allclose(plain["shapes"][k] @ plain["rotations"][v].T,
+                                   flip["shapes"][k] @ flip["rotations"][v].T, atol=1e-4)
+    with pytest.raises(ConfigError, match="flip_templates"):
+        teacher_targets(teacher, ds, clouds, refine=0, flip_model="bottle-complete", log=lambda *_: None)
+
+
 def test_cli_distills_a_partial_model(tmp_path, data_root, capsys):
     teacher_run, run = tmp_path / "teacher", tmp_path / "student"
     common = ["--category", "airplane", "--data-root", str(data_root), "--preset", "tiny", "--batch-size", "2",

@@ -39,9 +39,20 @@ def complete_clouds(root, category: str, split: str, limit: int | None = None) -
     return [np.asarray(c, np.float64) for _, _, c in modelnet_shapes(root, category, split, "npy1024", limit)]
 
 
+def _flip_templates(model, scale: float) -> dict:
+    """``flip_templates`` of a model (name or .onnx) in units of ``scale`` metres: {"points" [T, M, 3], "axes"}."""
+    from equipose.runtime.estimator import PoseEstimator
+    est = PoseEstimator(model)
+    ft = est.metadata.get("flip_templates")
+    if ft is None:
+        raise ConfigError(f"--teacher-flip {model}: the model has no flip_templates metadata "
+                          "(python -m equipose.export.flip_templates)")
+    return {"points": ft["points"] * est.scale / scale, "axes": ft["axes"]}
+
+
 @torch.no_grad()
 def teacher_targets(teacher_path, dataset, clouds: list, refine: int = 5, batch_size: int = 32,
-                    cache_file=None, frame_priors: str = "", log=print) -> dict:
+                    cache_file=None, frame_priors: str = "", flip_model: str = "", log=print) -> dict:
     """Teacher pose for every view of ``dataset`` (a ``RenderedPartial``) and canonical shape for every instance.
 
     Returns ``{"rotations" [V, 3, 3], "translations" [V, 3] (model units, camera frame of each view),
@@ -53,21 +64,26 @@ def teacher_targets(teacher_path, dataset, clouds: list, refine: int = 5, batch_
     hypotheses are ICP-refined against its own canonical shape and re-ranked (``equipose.runtime.refine``), as the shipped
     complete models run. ``frame_priors`` (e.g. "footprint,mirror:x"): each instance's pose then goes through those
     steps on its complete cloud in the teacher's calibrated category frame (``equipose.runtime.frame_priors``), and
-    its canonical shape turns with it (the posed shape stays where it was). Cached in ``cache_file`` (keyed by the
-    teacher file, the views, ``refine`` and ``frame_priors``).
+    its canonical shape turns with it (the posed shape stays where it was). ``flip_model``: a model whose metadata holds
+    ``flip_templates`` (``equipose.runtime.flip``); each instance's pose first takes the candidate (itself or a half
+    turn) those templates fit best. Cached in ``cache_file`` (keyed by the teacher file, the views, ``refine``,
+    ``frame_priors`` and ``flip_model``).
     """
     from equipose.core.geometry import farthest_point_order
+    from equipose.runtime.flip import flip_scores
     from equipose.runtime.frame_priors import apply_frame_priors, parse_steps
     from equipose.runtime.refine import refine_hypotheses
     teacher, ck = model_from_checkpoint(teacher_path)
     priors = parse_steps(frame_priors)
-    if priors is not None and not ck.get("calibration"):
+    flip = _flip_templates(flip_model, float(dataset.scale)) if flip_model else None
+    if (priors is not None or flip is not None) and not ck.get("calibration"):
         raise ConfigError(f"--teacher {teacher_path}: frame priors need the teacher's calibration (equipose calibrate)")
     if teacher.partial:
         raise ConfigError(f"--teacher {teacher_path}: the teacher must be a complete-shape model (mode complete)")
     key = json.dumps({"teacher": str(pathlib.Path(teacher_path).resolve()), "teacher_step": ck.get("step"),
                       "views": len(dataset), "instances": len(clouds), "refine": refine, "v": 3,
-                      **({"frame_priors": frame_priors} if priors is not None else {})})
+                      **({"frame_priors": frame_priors} if priors is not None else {}),
+                      **({"flip_model": str(flip_model)} if flip is not None else {})})
     if cache_file is not None and pathlib.Path(cache_file).is_file():
         z = np.load(cache_file)
         if str(z["key"]) == key:
@@ -93,10 +109,17 @@ def teacher_targets(teacher_path, dataset, clouds: list, refine: int = 5, batch_
                 r, tt, s = refine_hypotheses(inputs[b + j], S[j], r, tt, s, k=refine, iters=10, bidirectional=True)
             a = int(np.argmin(s))
             R_inst[b + j], t_inst[b + j] = r[a], tt[a]
-            if priors is not None:                                                   # learned → category → learned
+            if priors is not None or flip is not None:                               # learned → category → learned
                 dR = np.asarray(ck["calibration"]["rotation"], np.float64)
-                c = clouds[b + j] / dataset.scale
-                R_cat, _ = apply_frame_priors(c - c.mean(0), r[a] @ dR.T, priors)
+                dt = np.asarray(ck["calibration"]["translation"], np.float64)
+                c = clouds[b + j] / dataset.scale                                    # [P, 3] model units
+                R_cat = r[a] @ dR.T
+                if flip is not None:
+                    _, fits, R_fit = flip_scores(c, R_cat, tt[a] - R_cat @ dt, flip["points"], flip["axes"],
+                                                     partial=False)
+                    R_cat = R_cat if int(np.argmin(fits)) == 0 else R_fit[int(np.argmin(fits))]
+                if priors is not None:
+                    R_cat, _ = apply_frame_priors(c - c.mean(0), R_cat, priors)
                 Q = r[a].T @ (R_cat @ dR)                                            # learned-frame turn
                 R_inst[b + j] = r[a] @ Q
                 S[j] = S[j] @ Q                                                      # rows: Qᵀ y

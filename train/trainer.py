@@ -66,8 +66,8 @@ class TrainConfig:
     freeze: str = ""                      # comma-separated submodules kept fixed: blocks, pose_head, inv_head, decoder
     teacher: str = ""                     # partial only: distil from this complete-shape checkpoint (train/distill.py)
     teacher_refine: int = 5               # teacher's ICP re-scoring of its k best hypotheses (0 = plain network)
-    teacher_priors: str = ""              # teacher's poses through these frame priors, e.g. "footprint,mirror:x"
-                                          # (equipose.runtime.frame_priors; its calibrated category frame)
+    teacher_priors: str = ""              # teacher's poses through frame priors, e.g. "footprint,mirror:x"
+    teacher_flip: str = ""                # and through the flip stage of this model's flip_templates (name / .onnx)
     select_weight: float = 0.0            # distillation: weight of the hypothesis-selection cross-entropy
     symmetry_weight: float = 0.0          # complete, symmetric category: weight of model.axial_symmetry_loss
     minutes: float = 0.0                  # > 0: stop once the training steps (validation excluded) took this many
@@ -91,8 +91,8 @@ class TrainConfig:
             raise ConfigError(f"mode must be complete or partial, got {cfg.mode!r}")
         if cfg.teacher and cfg.mode != "partial":
             raise ConfigError("--teacher distils a partial-view model: use it with --mode partial")
-        if cfg.teacher_priors and not cfg.teacher:                          # (the steps are checked by distill)
-            raise ConfigError("--teacher-priors applies to the teacher's poses: give --teacher as well")
+        if (cfg.teacher_priors or cfg.teacher_flip) and not cfg.teacher:   # (the steps are checked by distill)
+            raise ConfigError("--teacher-priors / --teacher-flip apply to the teacher's poses: give --teacher too")
         if cfg.batch_size < 1 or cfg.steps < 0:
             raise ConfigError("batch_size must be ≥ 1 and steps ≥ 0")
         return cfg
@@ -223,7 +223,7 @@ def train(cfg: TrainConfig, resume: bool = False, log=print) -> pathlib.Path:
             raise ConfigError(f"teacher: {len(clouds)} complete clouds for {int(train_ds.instance.max()) + 1} instances")
         out.mkdir(parents=True, exist_ok=True)
         tt = teacher_targets(cfg.teacher, train_ds, clouds, refine=cfg.teacher_refine, cache_file=out / "teacher.npz",
-                             frame_priors=cfg.teacher_priors,
+                             frame_priors=cfg.teacher_priors, flip_model=cfg.teacher_flip,
                              log=log if rank == 0 else (lambda *_: None))
         targets = {k: torch.from_numpy(np.asarray(v, np.int64 if k == "instance" else np.float32)).to(device)
                    for k, v in tt.items()}

@@ -43,6 +43,9 @@ def add_arguments(p) -> None:
     p.add_argument("--teacher-priors", dest="teacher_priors",
                    help="distillation: pass the teacher's poses through these frame priors (mirror plane / footprint "
                    "of each complete training cloud, equipose.runtime.frame_priors), e.g. 'footprint,mirror:x'")
+    p.add_argument("--teacher-flip", dest="teacher_flip",
+                   help="distillation: settle the teacher's half-turn flips with the flip stage of this model's "
+                   "flip_templates metadata (a shipped name or .onnx, e.g. airplane-complete)")
     p.add_argument("--select-weight", dest="select_weight", type=float,
                    help="distillation: weight of the cross-entropy that makes the student's own score pick the best "
                    "hypothesis (default 0)")
