@@ -120,9 +120,14 @@ def apply_frame_priors(points, rotation, spec: dict, keep_up=None) -> tuple:
     turns only about it. Returns (rotation [3, 3], {step: degrees turned, or None where the step left the pose}).
     """
     P, R = _check(points, rotation)
+    steps = spec.get("steps") if isinstance(spec, dict) else None
+    if not steps or any(st not in FRAME_PRIOR_STEPS for st in steps) or \
+            ("mirror" in steps and spec.get("mirror_axis") not in _AXES):
+        raise ConfigError(f"frame priors: spec must be {{'steps': some of {list(FRAME_PRIOR_STEPS)}, 'mirror_axis': "
+                          f"'x'|'y'|'z' (for mirror), 'max_deg': float}}, got {spec!r}")
     max_deg = float(spec.get("max_deg", MAX_DEG))
     turned = {}
-    for step in spec["steps"]:
+    for step in steps:
         if step == "footprint":
             R, turned[step] = footprint_yaw(P, R, max_deg)
         elif step == "rest":
@@ -130,7 +135,7 @@ def apply_frame_priors(points, rotation, spec: dict, keep_up=None) -> tuple:
             turned[step] = None if up is None else float(np.degrees(np.arccos(np.clip(up @ R[:, 2], -1.0, 1.0))))
             if up is not None:
                 R = rotation_between(R[:, 2], up) @ R
-        elif step == "mirror":
+        else:                                                                # mirror
             a = _AXES[spec["mirror_axis"]]
             n, _, _ = mirror_plane(P, R[:, a], max_deg)
             if keep_up is not None:
@@ -142,7 +147,5 @@ def apply_frame_priors(points, rotation, spec: dict, keep_up=None) -> tuple:
             deg = float(np.degrees(np.arccos(np.clip(n @ R[:, a] / np.linalg.norm(n), -1.0, 1.0))))
             R = rotation_between(R[:, a], n) @ R
             turned[step] = deg
-        else:
-            raise InvalidPointsError(f"unknown frame-prior step {step!r}; use {', '.join(FRAME_PRIOR_STEPS)}")
     U, _, Vt = np.linalg.svd(R)                                               # exact SO(3)
     return U @ np.diag([1.0, 1.0, np.linalg.det(U @ Vt)]) @ Vt, turned

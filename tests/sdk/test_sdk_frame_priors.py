@@ -81,6 +81,9 @@ def test_bad_inputs():
         footprint_yaw(np.zeros((3, 3)), np.eye(3))
     with pytest.raises(errors.InvalidPointsError):
         apply_frame_priors(np.full((50, 3), np.nan), np.eye(3), {"steps": ["footprint"]})
+    for spec in ({}, {"steps": ["spin"]}, {"steps": ["mirror"]}, None):
+        with pytest.raises(errors.ConfigError, match="frame priors"):
+            apply_frame_priors(np.random.default_rng(0).normal(size=(50, 3)), np.eye(3), spec)
 
 
 def test_model_metadata(tiny_model, tmp_path, rng):
