@@ -22,7 +22,7 @@ if [ -n "${FLIP_TEACHER:-}" ]; then
       --axes "${FLIP_AXES:-z}" --pool "${FLIP_POOL:-24}" > /dev/null
 fi
 if [ -n "${FRAME_PRIORS:-}" ]; then
-  $PY -m equipose.export.frame_priors --model "$M" --category "$CAT" --steps "$FRAME_PRIORS" | tail -1
+  $PY -m equipose.export.frame_priors --model "$M" --category "$CAT" --steps "$FRAME_PRIORS" 2>/dev/null | tail -1
 fi
 $EQ eval --model "$M" --category "$ECAT" --mode "$MODE" --icp-templates 0 2>&1 | grep -E "^(method|equipose)"
 if [ -n "${KEEP:-}" ]; then cp "$M" "$KEEP"; fi
