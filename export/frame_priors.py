@@ -18,7 +18,7 @@ import sys
 import numpy as np
 
 from equipose.core.errors import ConfigError
-from equipose.core.geometry import random_rotations
+from equipose.core.geometry import random_rotations, rotation_angle_deg
 from equipose.runtime.frame_priors import apply_frame_priors, parse_steps
 
 MIN_GAIN_DEG = 0.05
@@ -26,11 +26,6 @@ __all__ = ["CANDIDATES", "MIN_GAIN_DEG", "score_candidates", "choose_frame_prior
 
 CANDIDATES = ["none", "footprint"] + [f"mirror:{a}" for a in "xyz"] + \
     [f"footprint,mirror:{a}" for a in "xyz"] + [f"mirror:{a},footprint" for a in "xyz"]
-
-
-def _errors_deg(R, R_gt) -> np.ndarray:
-    c = (np.einsum("sij,sij->s", R, R_gt) - 1.0) / 2.0                              # trace(Rᵀ R_gt) form
-    return np.degrees(np.arccos(np.clip(c, -1.0, 1.0)))
 
 
 def score_candidates(model, clouds, *, candidates=CANDIDATES, max_deg: float = 20.0, seed: int = 0,
@@ -57,7 +52,7 @@ def score_candidates(model, clouds, *, candidates=CANDIDATES, max_deg: float = 2
         spec = parse_steps(text, max_deg)
         R = np.stack(poses) if spec is None else \
             np.stack([apply_frame_priors(c, P, spec)[0] for c, P in zip(cloud_list, poses)])
-        e = _errors_deg(R, gts)
+        e = rotation_angle_deg(R, gts)
         out.append({"steps": text, "median_deg": float(np.median(e)), "acc_5deg": float(np.mean(e <= 5.0)),
                     "mean_deg": float(np.mean(e))})
     return out

@@ -78,6 +78,9 @@ def teacher_targets(teacher_path, dataset, clouds: list, refine: int = 5, batch_
     flip = _flip_templates(flip_model, float(dataset.scale)) if flip_model else None
     if (priors is not None or flip is not None) and not ck.get("calibration"):
         raise ConfigError(f"--teacher {teacher_path}: frame priors need the teacher's calibration (equipose calibrate)")
+    if priors is not None or flip is not None:                                       # learned → category frame
+        dR = np.asarray(ck["calibration"]["rotation"], np.float64)
+        dt = np.asarray(ck["calibration"]["translation"], np.float64)
     if teacher.partial:
         raise ConfigError(f"--teacher {teacher_path}: the teacher must be a complete-shape model (mode complete)")
     key = json.dumps({"teacher": str(pathlib.Path(teacher_path).resolve()), "teacher_step": ck.get("step"),
@@ -110,8 +113,6 @@ def teacher_targets(teacher_path, dataset, clouds: list, refine: int = 5, batch_
             a = int(np.argmin(s))
             R_inst[b + j], t_inst[b + j] = r[a], tt[a]
             if priors is not None or flip is not None:                               # learned → category → learned
-                dR = np.asarray(ck["calibration"]["rotation"], np.float64)
-                dt = np.asarray(ck["calibration"]["translation"], np.float64)
                 c = clouds[b + j] / dataset.scale                                    # [P, 3] model units
                 R_cat = r[a] @ dR.T
                 if flip is not None:

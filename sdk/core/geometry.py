@@ -11,7 +11,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 __all__ = ["quaternion_to_matrix", "matrix_to_quaternion", "rotation_angle_deg", "axis_angle_deg", "backproject",
-           "farthest_point_order", "random_rotations", "rotation_between"]
+           "farthest_point_order", "random_rotations", "rotation_between", "nearest_rotation"]
 
 
 def quaternion_to_matrix(q) -> np.ndarray:
@@ -94,6 +94,12 @@ def farthest_point_order(points: np.ndarray, n: int, start: int = 0) -> np.ndarr
     if n > P:
         idx = np.resize(idx, int(n))
     return idx
+
+
+def nearest_rotation(M) -> np.ndarray:
+    """[3, 3] closest rotation to ``M`` (SVD; e.g. a float32 model output or a product of rotations → exact SO(3))."""
+    U, _, Vt = np.linalg.svd(np.asarray(M, np.float64))
+    return U @ np.diag([1.0, 1.0, np.linalg.det(U @ Vt)]) @ Vt
 
 
 def random_rotations(n: int, seed=None) -> np.ndarray:

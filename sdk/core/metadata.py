@@ -42,9 +42,10 @@ import numpy as np
 from equipose.core import icosahedral
 from equipose.core.errors import MetadataError, ModelVersionError
 
-__all__ = ["FORMAT_VERSION", "REQUIRED_KEYS", "encode_metadata", "decode_metadata"]
+__all__ = ["FORMAT_VERSION", "REQUIRED_KEYS", "FRAME_PRIOR_STEPS", "encode_metadata", "decode_metadata"]
 
 FORMAT_VERSION = 1
+FRAME_PRIOR_STEPS = ("rest", "mirror", "footprint")       # equipose.runtime.frame_priors
 REQUIRED_KEYS = ("equipose_format", "equipose_version", "category", "preset", "model_config", "num_points",
                  "num_canonical_points", "scale", "partial", "symmetry", "calibration_rotation",
                  "calibration_translation", "anchors", "random_init", "training", "metrics")
@@ -129,7 +130,7 @@ def _frame_priors(text, source: str):
     except (ValueError, KeyError, TypeError) as e:
         raise MetadataError(f"{source}: malformed frame_priors metadata ({e}); re-run "
                             "'python -m equipose.export.frame_priors'") from None
-    if not steps or any(x not in ("rest", "mirror", "footprint") for x in steps):
+    if not steps or any(x not in FRAME_PRIOR_STEPS for x in steps):
         raise MetadataError(f"{source}: frame_priors steps must be a non-empty list of 'rest' / 'mirror' / "
                             f"'footprint', got {steps}")
     if "mirror" in steps and axis not in ("x", "y", "z"):

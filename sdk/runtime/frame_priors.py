@@ -29,12 +29,12 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from equipose.core.errors import ConfigError, InvalidPointsError
-from equipose.core.geometry import rotation_between
+from equipose.core.geometry import axis_angle_deg, nearest_rotation, rotation_between
+from equipose.core.metadata import FRAME_PRIOR_STEPS
 from equipose.runtime.rest_facet import rest_facet_up
 
 __all__ = ["FRAME_PRIOR_STEPS", "MAX_DEG", "parse_steps", "mirror_plane", "footprint_yaw", "apply_frame_priors"]
 
-FRAME_PRIOR_STEPS = ("rest", "mirror", "footprint")
 MAX_DEG = 20.0                  # default bound on how far a step may turn the pose
 _MIRROR_ITERS = 15
 _MIRROR_TRIM = 0.8              # pairs kept per iteration (the closest): asymmetric parts drop out
@@ -132,7 +132,7 @@ def apply_frame_priors(points, rotation, spec: dict, keep_up=None) -> tuple:
             R, turned[step] = footprint_yaw(P, R, max_deg)
         elif step == "rest":
             up = rest_facet_up(P, R[:, 2], max_deg)
-            turned[step] = None if up is None else float(np.degrees(np.arccos(np.clip(up @ R[:, 2], -1.0, 1.0))))
+            turned[step] = None if up is None else float(axis_angle_deg(up, R[:, 2]))
             if up is not None:
                 R = rotation_between(R[:, 2], up) @ R
         else:                                                                # mirror
@@ -144,8 +144,6 @@ def apply_frame_priors(points, rotation, spec: dict, keep_up=None) -> tuple:
                 if a == 2 or np.linalg.norm(n) < 1e-9:                       # nothing to turn about up
                     turned[step] = None
                     continue
-            deg = float(np.degrees(np.arccos(np.clip(n @ R[:, a] / np.linalg.norm(n), -1.0, 1.0))))
+            turned[step] = float(axis_angle_deg(n, R[:, a]))
             R = rotation_between(R[:, a], n) @ R
-            turned[step] = deg
-    U, _, Vt = np.linalg.svd(R)                                               # exact SO(3)
-    return U @ np.diag([1.0, 1.0, np.linalg.det(U @ Vt)]) @ Vt, turned
+    return nearest_rotation(R), turned

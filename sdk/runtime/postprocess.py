@@ -12,6 +12,7 @@ import time
 
 import numpy as np
 
+from equipose.core.geometry import nearest_rotation
 from equipose.runtime.frame_priors import apply_frame_priors
 from equipose.runtime.hypotheses import apply_calibration, canonicalise_rotation, parse_symmetry, select_hypothesis
 from equipose.runtime.refine import refine_hypotheses
@@ -21,12 +22,6 @@ from equipose.runtime.stages import apply_stages
 from equipose.runtime.upright import select_upright
 
 __all__ = ["finish_category"]
-
-
-def _nearest_rotation(M) -> np.ndarray:
-    """[3, 3] closest rotation to ``M`` (float32 model output → exact SO(3))."""
-    U, _, Vt = np.linalg.svd(np.asarray(M, np.float64))
-    return U @ np.diag([1.0, 1.0, np.linalg.det(U @ Vt)]) @ Vt
 
 
 def finish_category(est, outputs: dict, b: int, prep, *, prefer=None, prefer_margin: float = 0.0, up=None) -> tuple:
@@ -49,7 +44,7 @@ def finish_category(est, outputs: dict, b: int, prep, *, prefer=None, prefer_mar
     if up is None:
         sel = select_hypothesis(R_cat, t_cat, s_all, symmetry=est.symmetry, top_k=est.top_k, prefer=prefer,
                                 prefer_margin=prefer_margin)
-        R, t_model = _nearest_rotation(R_cat[sel.index]), t_cat[sel.index]
+        R, t_model = nearest_rotation(R_cat[sel.index]), t_cat[sel.index]
         rest = est.metadata.get("rest_facet")
         if rest is not None:
             up = rest_facet_up(prep.model_points, R[:, 2], rest["tolerance_deg"])
@@ -58,11 +53,10 @@ def finish_category(est, outputs: dict, b: int, prep, *, prefer=None, prefer_mar
         sel, R, t_model = select_upright(prep.model_points, canon_cat, R_cat, t_cat, s_all, up, symmetry=est.symmetry,
                                          top_k=est.top_k, bidirectional=not est.partial,
                                          starts=[sel.index] if up_source == "rest_facet" else None)
-        R = _nearest_rotation(R)
+        R = nearest_rotation(R)
     turned = None
     if est.metadata.get("frame_priors") is not None:                           # mirror plane / footprint
-        cloud = prep.model_points if getattr(prep, "cloud", None) is None else prep.cloud
-        R, turned = apply_frame_priors(cloud, R, est.metadata["frame_priors"],
+        R, turned = apply_frame_priors(prep.model_points if prep.cloud is None else prep.cloud, R, est.metadata["frame_priors"],
                                        keep_up=up if up_source == "given" else None)
     t_m = prep.to_metres(t_model)                                               # [3] metres
     canon_obj = canon_cat * est.scale                                           # [M, 3] category frame, metres
