@@ -129,6 +129,12 @@ def main(argv=None) -> int:
     R, t, *_ = predict_onnx(est, samples)
     rows.append(summary("shipped", R, t, samples))
     rows.append(summary("oracle best of 4 turns", oracle_turns(R, samples), t, samples))
+    from scipy.spatial.transform import Rotation
+    R_gt = np.stack([s["rotation"] for s in samples])
+    rv = Rotation.from_matrix(np.einsum("nji,njk->nik", R_gt, R)).as_rotvec()     # [S, 3] error, category frame
+    flips = np.linalg.norm(rv, axis=1) > np.radians(150)
+    counts = np.bincount(np.abs(rv[flips]).argmax(1), minlength=3)
+    print(f"shipped flips by dominant error axis: x {counts[0]}, y {counts[1]}, z {counts[2]}")
     shipped_ft = est.metadata.get("flip_templates")
     est.metadata["flip_templates"] = None
     R0, t0, *_ = predict_onnx(est, samples)
