@@ -39,6 +39,8 @@ def icp_multi(observed: np.ndarray, template: np.ndarray, R0: np.ndarray, t0: np
     ``constrain``: optional map of rotations [J, 3, 3] → [J, 3, 3] applied to the starts and after every Kabsch step
     (the translation is then re-fitted for the constrained rotation), e.g. the up prior's "keep +z on up".
     ``template`` may also be [T, M, 3] (several templates of equal size) with ``which`` [J] the template of each start.
+    A start whose nearest-neighbour pairs repeat those of the step that moved it is at a fixed point (the fit of the
+    same pairs is the same pose) and leaves the loop early with exactly the result the remaining iterations would give.
     """
     x = np.asarray(observed, np.float64)                                       # [N, 3]
     Y = np.asarray(template, np.float64)
@@ -48,33 +50,48 @@ def icp_multi(observed: np.ndarray, template: np.ndarray, R0: np.ndarray, t0: np
     R, t = np.array(R0, np.float64), np.array(t0, np.float64)
     J, N, M = len(R), len(x), Y.shape[1]
     which = np.zeros(J, int) if which is None else np.asarray(which, int)      # [J] template of each start
-    groups = [(k, np.nonzero(which == k)[0]) for k in np.unique(which)]
-    trees = {k: tree if (tree is not None and len(Y) == 1) else cKDTree(Y[k]) for k, _ in groups}
+    trees = {k: tree if (tree is not None and len(Y) == 1) else cKDTree(Y[k]) for k in np.unique(which)}
     obs_tree = cKDTree(x) if bidirectional else None
-    Yj = np.broadcast_to(Y[0], (J, M, 3)) if len(Y) == 1 else Y[which]         # [J, M, 3] each start's template
     flat = Y.reshape(-1, 3)                                                    # [T·M, 3]
     if constrain is not None:
         R = constrain(R)
+    res = np.empty(J)
+    last = np.full((J, N + (M if bidirectional else 0)), -1)                   # [J, ·] previous correspondences
+    live = np.arange(J)                                                        # starts still moving
     for it in range(iters + 1):
-        local = np.einsum("jni,jik->jnk", (x[None] - t[:, None]), R)           # [J, N, 3] = Rᵀ(x − t)
-        d1, i1 = np.empty((J, N)), np.empty((J, N), int)
-        for k, js in groups:
+        Ra, ta, wa = R[live], t[live], which[live]                             # [L, 3, 3], [L, 3], [L]
+        L = len(live)
+        local = np.einsum("jni,jik->jnk", (x[None] - ta[:, None]), Ra)         # [L, N, 3] = Rᵀ(x − t)
+        d1, i1 = np.empty((L, N)), np.empty((L, N), int)
+        for k in np.unique(wa):
+            js = np.nonzero(wa == k)[0]
             d, i = trees[k].query(local[js].reshape(-1, 3))
             d1[js], i1[js] = d.reshape(len(js), N), i.reshape(len(js), N)
-        res = (d1 ** 2).mean(1)                                                # [J]
-        src, dst = flat[which[:, None] * M + i1], np.broadcast_to(x, (J, N, 3))  # template ↔ observed points
+        res[live] = (d1 ** 2).mean(1)                                          # [L]
+        src, dst = flat[wa[:, None] * M + i1], np.broadcast_to(x, (L, N, 3))   # template ↔ observed points
+        pairs = i1
         if bidirectional:
-            posed = np.einsum("jmk,jik->jmi", Yj, R) + t[:, None]             # [J, M, 3] = R y + t
+            Yl = np.broadcast_to(Y[0], (L, M, 3)) if len(Y) == 1 else Y[wa]   # [L, M, 3] each start's template
+            posed = np.einsum("jmk,jik->jmi", Yl, Ra) + ta[:, None]           # [L, M, 3] = R y + t
             d2, i2 = obs_tree.query(posed.reshape(-1, 3))
-            res = res + (d2.reshape(J, M) ** 2).mean(1)
-            src = np.concatenate([src, Yj], 1)
-            dst = np.concatenate([dst, x[i2.reshape(J, M)]], 1)
+            res[live] += (d2.reshape(L, M) ** 2).mean(1)
+            src = np.concatenate([src, Yl], 1)
+            dst = np.concatenate([dst, x[i2.reshape(L, M)]], 1)
+            pairs = np.concatenate([i1, i2.reshape(L, M)], 1)
         if it == iters:
             break
-        R, t = kabsch(src, np.ascontiguousarray(dst))
+        # same pairs as the step that led here: that step's fit is this pose again, so the start has converged
+        moving = ~(pairs == last[live]).all(1)                                 # [L]
+        last[live] = pairs
+        if not moving.all():
+            live, src, dst = live[moving], src[moving], dst[moving]
+            if not len(live):
+                break
+        Rn, tn = kabsch(src, np.ascontiguousarray(dst))
         if constrain is not None:
-            R = constrain(R)
-            t = dst.mean(1) - np.einsum("jik,jk->ji", R, src.mean(1))          # best translation for that R
+            Rn = constrain(Rn)
+            tn = dst.mean(1) - np.einsum("jik,jk->ji", Rn, src.mean(1))        # best translation for that R
+        R[live], t[live] = Rn, tn
     return R, t, res
 
 

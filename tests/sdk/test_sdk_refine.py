@@ -51,3 +51,39 @@ def test_estimator_refine_option():
     ref = PoseEstimator(demo_model_path(), threads=1, refine=3).predict_points(pts)
     assert ref.rotation.shape == (3, 3) and np.allclose(ref.rotation @ ref.rotation.T, np.eye(3), atol=1e-6)
     assert np.isfinite(ref.translation).all() and np.linalg.norm(ref.translation - plain.translation) < 0.2
+
+
+def _reference_icp(x, Y, R, t, iters, bidirectional):
+    """One start, every iteration, no early exit: nearest pairs → Kabsch, residual at the final pose."""
+    from scipy.spatial import cKDTree
+    from equipose.runtime.refine import kabsch
+    ty, tx = cKDTree(Y), cKDTree(x)
+    for it in range(iters + 1):
+        d1, i1 = ty.query((x - t) @ R)
+        res, src, dst = (d1 ** 2).mean(), Y[i1], x
+        if bidirectional:
+            d2, i2 = tx.query(Y @ R.T + t)
+            res, src, dst = res + (d2 ** 2).mean(), np.concatenate([src, Y]), np.concatenate([dst, x[i2]])
+        if it == iters:
+            return R, t, res
+        Rk, tk = kabsch(src[None], dst[None])
+        R, t = Rk[0], tk[0]
+
+
+@pytest.mark.parametrize("bidirectional", [False, True])
+def test_icp_multi_early_exit_matches_every_iteration(bidirectional):
+    """Starts that reach a fixed point leave early; the result equals running all iterations one start at a time."""
+    from equipose.runtime.refine import icp_multi
+    rng = np.random.default_rng(3)
+    Y = _tripod(rng, 300)
+    R_true = random_rotations(1, seed=2)[0]
+    x = Y[rng.permutation(300)[:200]] @ R_true.T + [0.0, 0.0, 1.0] + rng.normal(0, 0.003, (200, 3))
+    R0 = np.stack([Rotation.from_rotvec(rng.normal(0, s, 3)).as_matrix() @ R_true for s in (0.05, 0.3, 0.8, 2.0)])
+    t0 = np.tile([0.0, 0.0, 1.0], (4, 1)) + rng.normal(0, 0.02, (4, 3))
+    R, t, res = icp_multi(x, Y, R0, t0, iters=40, bidirectional=bidirectional)
+    for j in range(4):
+        Rr, tr, rr = _reference_icp(x, Y, R0[j], t0[j], 40, bidirectional)
+        np.testing.assert_allclose(R[j], Rr, atol=1e-9)
+        np.testing.assert_allclose(t[j], tr, atol=1e-9)
+        assert res[j] == pytest.approx(rr, rel=1e-9)
+    assert rotation_angle_deg(R[0], R_true) < 1.0                       # the near start converges to the truth
