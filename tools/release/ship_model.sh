@@ -7,7 +7,7 @@
 # Environment (deploying a network trained on another data set, e.g. a complete-shape network on tabletop depth):
 #   SCALE=m/unit  EXPORT_CATEGORY=name  EVAL_MODE=complete|partial (test set; default MODE)  REFINE=0 (no ICP
 #   re-scoring calibration: the file then runs the plain network by default)  REFINE_ITERS=N (ICP iterations of the
-#   re-scoring, default 10; the complete-shape ModelNet models ship with 30)  FLIP_TEACHER=model FLIP_AXES=z
+#   re-scoring, default 10; the ModelNet models ship with 30 except sofa-partial)  FLIP_TEACHER=model FLIP_AXES=z
 #   FLIP_POOL=24 (front/back templates from that complete-shape model, the 6 of FLIP_POOL reconstructions that agree
 #   on the frame, equipose.export.flip_templates, added before evaluation)
 #   REST_FACET=deg (complete clouds: the rest-facet stage with that tolerance, metadata rest_facet)
