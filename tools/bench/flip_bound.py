@@ -47,12 +47,14 @@ import numpy as np
 
 from equipose import PoseEstimator
 from equipose.core.geometry import farthest_point_order, rotation_angle_deg
+from equipose.eval.metrics import FLIP_DEG
+from equipose.runtime.hypotheses import HALF_TURNS
 from equipose.train.data import RenderedPartial
 from equipose.train.evaluate import _row, predict_onnx
 from equipose.train.modelnet import load_modelnet
 from equipose.train.render_cache import ensure_cache
 
-TURNS = np.stack([np.eye(3), np.diag([1.0, -1, -1]), np.diag([-1.0, 1, -1]), np.diag([-1.0, -1, 1])])  # I, x, y, z
+TURNS = np.stack([np.eye(3)] + [HALF_TURNS[a] for a in "xyz"])                  # [4, 3, 3]: I, half turns x, y, z
 GRID = (8, 8, 6)                      # occupancy cells along the category x, y, z
 POINTS = 256                          # observation points per view (farthest-point subset)
 
@@ -132,7 +134,7 @@ def main(argv=None) -> int:
     from scipy.spatial.transform import Rotation
     R_gt = np.stack([s["rotation"] for s in samples])
     rv = Rotation.from_matrix(np.einsum("nji,njk->nik", R_gt, R)).as_rotvec()     # [S, 3] error, category frame
-    flips = np.linalg.norm(rv, axis=1) > np.radians(150)
+    flips = np.linalg.norm(rv, axis=1) > np.radians(FLIP_DEG)
     counts = np.bincount(np.abs(rv[flips]).argmax(1), minlength=3)
     print(f"shipped flips by dominant error axis: x {counts[0]}, y {counts[1]}, z {counts[2]}")
     shipped_ft = est.metadata.get("flip_templates")
