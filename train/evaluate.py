@@ -144,7 +144,7 @@ def _row(method, R, t, samples, symmetry, unsigned):
 
 def evaluate(*, category: str, mode: str, checkpoint=None, model_path=None, data_root=None, limit: int | None = None,
              icp_templates: int = 3, icp_points: int = 256, icp_iters: int = 20, template_points: int = 512,
-             icp_samples: int | None = None, refine=None, exclude=(), up: str | None = None,
+             icp_samples: int | None = None, refine=None, copies=None, exclude=(), up: str | None = None,
              seed: int = 0, cache_dir=None, progress: bool = True, log=print) -> dict:
     """Run both methods on one test set; returns the result dict (JSON layout above) plus ``_errors`` arrays."""
     root = data_root or default_data_root()
@@ -152,8 +152,8 @@ def evaluate(*, category: str, mode: str, checkpoint=None, model_path=None, data
         raise ConfigError("give exactly one of --checkpoint or --model")
     if up not in (None, "gt") or (up and checkpoint is not None):
         raise ConfigError(f"--up takes 'gt' (the true up axis as the up prior) and needs --model, got {up!r}")
-    if refine is not None and checkpoint is not None:
-        raise ConfigError("--refine applies to an exported model (--model), the SDK's re-scoring")
+    if (refine is not None or copies is not None) and checkpoint is not None:
+        raise ConfigError("--refine and --copies apply to an exported model (--model), the SDK's re-scoring")
     if checkpoint is not None:
         from equipose.train.checkpoint import model_from_checkpoint
         model, ckpt = model_from_checkpoint(checkpoint)
@@ -166,7 +166,8 @@ def evaluate(*, category: str, mode: str, checkpoint=None, model_path=None, data
             log("warning: checkpoint has no calibration (identity); run 'equipose calibrate' first")
     else:
         from equipose.runtime.estimator import PoseEstimator
-        est = PoseEstimator(model_path, refine="auto" if refine is None else refine)
+        est = PoseEstimator(model_path, refine="auto" if refine is None else refine,
+                            copies="auto" if copies is None else copies)
         num_points, symmetry, scale = est.num_points, est.symmetry, est.scale
     unsigned = category == "can"
     ds = test_dataset(root, category, mode, num_points, limit=limit, cache_dir=cache_dir)
@@ -185,6 +186,8 @@ def evaluate(*, category: str, mode: str, checkpoint=None, model_path=None, data
         refine = est.refine
     ours_s = time.perf_counter() - t0
     name = "equipose" + ("+up(gt)" if up else f"+icp{refine}" if refine else "")
+    if checkpoint is None and est.copies > 1:
+        name += f"+copies{est.copies}"
     row, r_err, t_err = _row(name, R, t, samples, symmetry, unsigned)
     rows, errors = [row], {"equipose": (r_err, t_err)}
     if checkpoint is None and seen is not None:                    # handle models: the views whose handle was seen

@@ -18,6 +18,8 @@ def add_arguments(p) -> None:
                                      "result in its 'refine_calibration' metadata (PoseEstimator(refine='auto') uses it)")
     p.add_argument("--refine", type=int, default=5, help="with --model: hypotheses refined by ICP (default 5)")
     p.add_argument("--refine-iters", dest="refine_iters", type=int, default=10, help="with --model: ICP iterations")
+    p.add_argument("--copies", type=int, default=1,
+                   help="with --model: rotated input copies per object (PoseEstimator(copies=K); default 1 = off)")
     p.add_argument("--views", type=int, default=None,
                    help="partial mode: rendered views per training instance of the cache to use (default: the "
                         "checkpoint's training setting, else 10)")
@@ -50,10 +52,10 @@ def _run_model(args) -> int:
     idx = rng.choice(len(ds), size=min(args.num, len(ds)), replace=False)
     canon = np.stack([ds.sample(int(i), np.random.default_rng([args.seed, int(i)]))["canonical"] for i in idx])
     cal = calibrate_onnx_refined(args.model, canon, k=args.refine, iters=args.refine_iters,
-                                 unsigned_axis=(category == "can"), seed=args.seed)
+                                 unsigned_axis=(category == "can"), seed=args.seed, copies=args.copies)
     cal["inputs"] = f"{len(idx)} category-frame {category}/{mode} training samples"
     update_metadata(args.model, refine_calibration=cal)
-    print(f"refined calibration (k={args.refine}, {args.refine_iters} ICP iterations) from {cal['n']} inputs: rotation "
+    print(f"refined calibration (k={args.refine}, {args.refine_iters} ICP iterations, {args.copies} copies) from {cal['n']} inputs: rotation "
           f"inliers {cal['inlier_fraction']:.2f}, translation inliers {cal['translation_inlier_fraction']:.2f} "
           f"→ {args.model} (metadata refine_calibration)")
     return 0

@@ -32,6 +32,9 @@ def add_arguments(p) -> None:
     p.add_argument("--refine", type=int, default=None,
                    help="with --model: ICP re-scoring of the K best hypotheses in the SDK (PoseEstimator(refine=K); "
                         "default: the file's own setting, 'auto')")
+    p.add_argument("--copies", type=int, default=None,
+                   help="with --model: rotated input copies per object (PoseEstimator(copies=K); default: the file's "
+                        "own setting, 'auto')")
     p.add_argument("--up", choices=["gt"], default=None,
                    help="with --model: give the SDK each view's true up axis as the up prior (the setting of a user "
                         "with a level IMU or a table plane; PoseEstimator.predict(..., up=...)); ICP-60 does not use it")
@@ -55,7 +58,7 @@ def run(args) -> int:
     res = evaluate(category=args.category, mode=args.mode, checkpoint=args.checkpoint, model_path=args.model,
                    data_root=args.data_root, limit=args.limit, icp_templates=args.icp_templates,
                    icp_points=args.icp_points, icp_iters=args.icp_iters, icp_samples=args.icp_samples, cache_dir=args.cache_dir,
-                   refine=args.refine, exclude=exclude, up=args.up)
+                   refine=args.refine, copies=args.copies, exclude=exclude, up=args.up)
     if args.store_metrics and not args.model:
         raise ConfigError("--store-metrics needs --model (the metrics describe that file)")
     print(format_table(res))

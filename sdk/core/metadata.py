@@ -21,8 +21,9 @@ Keys (all values are strings):
     training                JSON: training data summary (dataset, mode, steps, ...)
     metrics                 JSON: metrics on the test split ({} if none)
 Optional keys (absent in older files): ``precision`` "fp32" | "int8" (weights of the graph's MatMul/Gemm);
-``refine_calibration`` JSON {k, iters, rotation 3×3, translation 3, ...}: the calibration for the SDK's ICP
-re-scoring of the k best hypotheses (``equipose calibrate --model M --refine K``); ``handle`` JSON {"direction": 3}:
+``refine_calibration`` JSON {k, iters, copies, rotation 3×3, translation 3, ...}: the calibration for the SDK's ICP
+re-scoring of the k best hypotheses with ``copies`` rotated input copies per object (absent: 1; ``equipose calibrate
+--model M --refine K --copies C``); ``handle`` JSON {"direction": 3}:
 the unit handle direction in the category frame, for categories whose pose includes a handle (``mug``: +x); the SDK
 then reports whether the handle was seen (``PoseResult.handle_visible``); ``shape_prior`` "cylinder": the SDK takes the
 symmetry axis from the observed normals (cans and tins, ``equipose.runtime.cylinder``); ``flip_templates`` JSON
@@ -195,7 +196,7 @@ def decode_metadata(props: dict, source: str = "model") -> dict:
     try:
         rc = json.loads(props["refine_calibration"]) if props.get("refine_calibration") else None
         out["refine_calibration"] = None if not rc else {
-            "k": int(rc["k"]), "iters": int(rc["iters"]),
+            "k": int(rc["k"]), "iters": int(rc["iters"]), "copies": int(rc.get("copies", 1)),
             "rotation": np.asarray(rc["rotation"], dtype=np.float64).reshape(3, 3),
             "translation": np.asarray(rc["translation"], dtype=np.float64).reshape(3)}
     except (ValueError, KeyError, TypeError) as e:

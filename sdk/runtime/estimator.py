@@ -18,6 +18,7 @@ from equipose.core.errors import ConfigError, EquiposeError, InvalidPointsError,
 from equipose.runtime.hypotheses import parse_symmetry
 from equipose.core.metadata import decode_metadata
 from equipose.core.presets import ModelConfig, total_macs
+from equipose.runtime.copies import copy_rotations, rotate_copies
 from equipose.runtime.instance import build_instance_model, finish_instance
 from equipose.runtime.postprocess import finish_category
 from equipose.runtime.result import FrameError, PoseResult
@@ -49,6 +50,10 @@ class PoseEstimator:
             canonical shape, re-ranked by residual (0 = the network's argmin). "auto" (default): what the file was
             calibrated for (metadata ``refine_calibration``, ``equipose calibrate --model M --refine K``), else 0.
         refine_iters: ICP iterations per refined hypothesis (default: the file's, else 10).
+        copies: rotated input copies per object (``equipose.runtime.copies``): the network runs on ``copies`` turned
+            copies of each object in one batch; the pose starts from their consensus and is refined against their
+            mean canonical shape (1 = off). "auto" (default): what the file was calibrated for (metadata
+            ``refine_calibration``, ``equipose calibrate --model M --copies K``) when its re-scoring is used, else 1.
         model_points: instance-level mode (``equipose.runtime.instance``): [M, 3] metres of the object's own model
             (CAD frame); results are that model's pose (camera ← CAD), found by ICP of the ``instance_k`` best
             hypotheses (``instance_iters`` iterations) against the model points instead of the predicted shape.
@@ -62,8 +67,8 @@ class PoseEstimator:
     """
 
     def __init__(self, model_path, threads: int | None = None, *, crop_options: dict | None = None, top_k: int = 5,
-                 refine: int | str = "auto", refine_iters: int | None = None, adaptive_threads: bool = True,
-                 model_points=None, instance_k: int = 10, instance_iters: int = 20):
+                 refine: int | str = "auto", refine_iters: int | None = None, copies: int | str = "auto",
+                 adaptive_threads: bool = True, model_points=None, instance_k: int = 10, instance_iters: int = 20):
         path = resolve_model_file(model_path)
         if threads is not None and (not isinstance(threads, int) or threads < 0):
             raise ConfigError(f"threads must be None or a non-negative int, got {threads!r}")
@@ -95,6 +100,13 @@ class PoseEstimator:
         self.refine, self.refine_iters = refine, refine_iters
         if refine and rcal:                                                     # calibrated for refined poses
             self.calibration_rotation, self.calibration_translation = rcal["rotation"], rcal["translation"]
+        if copies == "auto":
+            copies = rcal["copies"] if (refine and rcal and model_points is None) else 1
+        self.copy_rotations = copy_rotations(copies)                            # [K, 3, 3], copy 0 the identity
+        self.copies = int(copies)
+        if self.copies > 1 and model_points is not None:
+            raise ConfigError("rotated input copies (copies > 1) do not apply in instance-level mode (model_points): "
+                              "leave copies='auto' or 1")
         if isinstance(top_k, bool) or not isinstance(top_k, int) or top_k < 1:
             raise ConfigError(f"top_k must be an int ≥ 1 (hypotheses listed per result), got {top_k!r}")
         self.crop_options = _crop.check_crop_options(crop_options or {})
@@ -178,6 +190,8 @@ class PoseEstimator:
     def _infer(self, preps, crops, fps_ms, crop_ms, counts, prefer=None, prefer_margin=0.0, ups=None) -> list:
         t0 = time.perf_counter()
         x = np.stack([p.model_points for p in preps])                           # [B, N, 3]
+        if self.copies > 1:
+            x = rotate_copies(x, self.copy_rotations)                           # [B·K, N, 3]
         outputs = (self.runner or self.run_model)(x)
         inf_ms = _ms(t0)
         results = []

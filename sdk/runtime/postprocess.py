@@ -14,8 +14,10 @@ import numpy as np
 
 from equipose.core.geometry import nearest_rotation
 from equipose.runtime.frame_priors import apply_frame_priors
-from equipose.runtime.hypotheses import apply_calibration, canonicalise_rotation, parse_symmetry, select_hypothesis
-from equipose.runtime.refine import refine_hypotheses
+from equipose.runtime.copies import consensus_pose, undo_copies
+from equipose.runtime.hypotheses import (apply_calibration, canonicalise_rotation, parse_symmetry, select_hypothesis,
+                                         symmetric_distance_deg)
+from equipose.runtime.refine import icp_multi, refine_hypotheses
 from equipose.runtime.rest_facet import rest_facet_up
 from equipose.runtime.result import PoseResult
 from equipose.runtime.stages import apply_stages
@@ -25,18 +27,43 @@ __all__ = ["finish_category"]
 
 
 def finish_category(est, outputs: dict, b: int, prep, *, prefer=None, prefer_margin: float = 0.0, up=None) -> tuple:
-    """Batch item ``b`` → (PoseResult without timings, selection ms). With ``up`` the up prior selects (its own ICP,
+    """Batch item ``b`` → (PoseResult without timings, selection ms). With ``est.copies`` K > 1 the outputs hold K
+    rotated copies per object (rows b·K …, ``equipose.runtime.copies``): hypotheses of copy 0, the copies' mean shape,
+    and their consensus (ICP-refined like the re-scored ones) in place of its nearest hypothesis, ranked first. With
+    ``up`` the up prior selects (its own ICP,
     so the re-scoring and the tracking preference are not used); ``result.up`` records it. Models with metadata
     ``rest_facet`` and no ``up`` take it from the cloud's resting face near the selected pose's up axis; models with
     ``frame_priors`` then turn the pose onto the cloud's mirror plane / footprint (``result.frame_priors``)."""
     t0 = time.perf_counter()
-    R_all = outputs["hypothesis_rotations"][b]                                  # [60, 3, 3]
-    t_all = outputs["hypothesis_translations"][b]                               # [60, 3] model units
-    s_all = outputs["hypothesis_scores"][b]                                     # [60]
-    canon = np.asarray(outputs["canonical_shape"][b], np.float64)               # [M, 3] learned frame, model units
+    K = est.copies
+    if K > 1:                                                                   # rotated copies: rows b·K .. b·K+K−1
+        rows = slice(b * K, (b + 1) * K)
+        Rk, tk = undo_copies(outputs["hypothesis_rotations"][rows], outputs["hypothesis_translations"][rows],
+                             est.copy_rotations)                                # [K, 60, 3, 3], [K, 60, 3]
+        sk = np.asarray(outputs["hypothesis_scores"][rows], np.float64)        # [K, 60]
+        canon = np.asarray(outputs["canonical_shape"][rows], np.float64).mean(0)  # [M, 3] mean over the copies
+        R_all, t_all, s_all = Rk[0], tk[0], sk[0].copy()                        # copy 0: the input as it is
+        first = sk.argmin(1)                                                    # [K] each copy's best
+        R_c, t_c, support = consensus_pose(Rk[np.arange(K), first], tk[np.arange(K), first], est.symmetry)
+    else:
+        R_all = outputs["hypothesis_rotations"][b]                              # [60, 3, 3]
+        t_all = outputs["hypothesis_translations"][b]                           # [60, 3] model units
+        s_all = outputs["hypothesis_scores"][b]                                 # [60]
+        canon = np.asarray(outputs["canonical_shape"][b], np.float64)           # [M, 3] learned frame, model units
     if est.refine and up is None:                                               # ICP re-scoring, learned frame
         R_all, t_all, s_all = refine_hypotheses(prep.model_points, canon, R_all, t_all, s_all, k=est.refine,
                                                 iters=est.refine_iters, bidirectional=not est.partial)
+        if K > 1:                                                               # the consensus, refined the same way
+            R1, t1, r1 = icp_multi(prep.model_points, canon, R_c[None], t_c[None], iters=est.refine_iters,
+                                   bidirectional=not est.partial)
+            R_c, t_c, s_c = R1[0], t1[0], float(r1[0])
+    if K > 1:        # the consensus takes the place of its nearest hypothesis and ranks first
+        R_all, t_all, s_all = np.array(R_all, np.float64), np.array(t_all, np.float64), np.array(s_all, np.float64)
+        j = int(np.argmin(symmetric_distance_deg(R_c, R_all, est.symmetry)))
+        s_c = s_all[j] if not (est.refine and up is None) else s_c
+        others = np.delete(s_all, j)
+        R_all[j], t_all[j] = R_c, t_c
+        s_all[j] = s_c if not len(others) or s_c < others.min() else np.nextafter(others.min(), -np.inf)
     dR, dt = est.calibration_rotation, est.calibration_translation
     R_cat, t_cat = apply_calibration(R_all, t_all, dR, dt)                      # [60, 3, 3], [60, 3]
     canon_cat = canon @ dR.T + dt                                               # [M, 3] category frame, model units
@@ -67,6 +94,6 @@ def finish_category(est, outputs: dict, b: int, prep, *, prefer=None, prefer_mar
         top_k=sel.top_k, symmetry=est.symmetry, symmetry_axis=None if kind == "none" else R[:, axis].copy(),
         rotation_canonical=canonicalise_rotation(R, est.symmetry), category=est.category,
         random_init=est.random_init, up=None if up is None else np.asarray(up, np.float64).copy(), up_source=up_source,
-        frame_priors=turned)
+        frame_priors=turned, agreement=None if K == 1 else float(support.mean()))
     apply_stages(est.metadata, res, prep.model_points, t_model, canon_cat, up=up)  # flip, cylinder, handle
     return res, (time.perf_counter() - t0) * 1e3

@@ -47,6 +47,8 @@ class PoseResult:
             below 0.1), else None.
         frame_priors: models with metadata ``frame_priors`` (``equipose.runtime.frame_priors``): degrees each step
             turned the pose ({"mirror": 0.8, "footprint": -1.2}; None for a step that left it), else None.
+        agreement: with rotated input copies (``PoseEstimator(copies=K)``, K > 1): the fraction of copies whose best
+            hypothesis lies within 15° of their consensus (1 = all agree; low = the network is unsure), else None.
     """
     rotation: np.ndarray
     translation: np.ndarray
@@ -77,6 +79,7 @@ class PoseResult:
     up_source: str | None = None
     flip_margin: float | None = None
     frame_priors: dict | None = None
+    agreement: float | None = None
 
     def set_pose(self, rotation, translation):
         """Replace the pose (e.g. after smoothing) and update everything derived from it (shape, symmetry axis)."""
@@ -147,6 +150,8 @@ class PoseResult:
         }
         if self.frame_priors is not None:
             d["frame_priors"] = {k: None if v is None else round(float(v), 4) for k, v in self.frame_priors.items()}
+        if self.agreement is not None:
+            d["agreement"] = round(float(self.agreement), 4)
         if self.flip_margin is not None:
             d["flip_margin"] = round(float(self.flip_margin), 6)
         if self.handle_visible is not None:
