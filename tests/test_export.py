@@ -297,7 +297,8 @@ def test_update_metadata_and_model_card(tiny_ckpt, tmp_path):
 
 
 def test_refined_calibration_round_trip(tiny_ckpt, tmp_path, rng):
-    """calibrate_onnx_refined → refine_calibration metadata → PoseEstimator(refine='auto') uses k, iters and it."""
+    """calibrate_onnx_refined → refine_calibration metadata → PoseEstimator(refine='auto') uses k, iters, copies and
+    it."""
     import shutil
 
     from equipose import PoseEstimator
@@ -315,11 +316,20 @@ def test_refined_calibration_round_trip(tiny_ckpt, tmp_path, rng):
     est = PoseEstimator(path, threads=1)
     assert est.refine == 3 and est.refine_iters == 4
     np.testing.assert_allclose(est.calibration_rotation, R)
+    assert est.copies == 1                                                   # calibrated with one copy
     plain = PoseEstimator(path, threads=1, refine=0)
     np.testing.assert_allclose(plain.calibration_rotation, CALIBRATION["rotation"])   # the network's own
+    cal3 = calibrate_onnx_refined(path, canon, k=2, iters=3, copies=3)      # rotated copies: calibrated with them
+    assert cal3["copies"] == 3
+    update_metadata(path, refine_calibration=cal3)
+    assert PoseEstimator(path, threads=1).copies == 3
+    assert PoseEstimator(path, threads=1, refine=0).copies == 1              # the plain network runs one copy
+    assert PoseEstimator(path, threads=1, copies=2).copies == 2
     before = path.read_bytes()
     with pytest.raises(MetadataError):                                       # validated before writing …
         update_metadata(path, refine_calibration={"k": 2})
+    with pytest.raises(MetadataError):
+        update_metadata(path, refine_calibration={**cal3, "copies": 0})
     assert path.read_bytes() == before
     proto = onnx.load(str(path))                                             # … and when a file carries it anyway
     next(p for p in proto.metadata_props if p.key == "refine_calibration").value = '{"k": 2}'

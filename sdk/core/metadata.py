@@ -199,6 +199,8 @@ def decode_metadata(props: dict, source: str = "model") -> dict:
             "k": int(rc["k"]), "iters": int(rc["iters"]), "copies": int(rc.get("copies", 1)),
             "rotation": np.asarray(rc["rotation"], dtype=np.float64).reshape(3, 3),
             "translation": np.asarray(rc["translation"], dtype=np.float64).reshape(3)}
+        if rc and not 1 <= out["refine_calibration"]["copies"] <= 64:          # equipose.runtime.copies.MAX_COPIES
+            raise ValueError(f"copies must be in 1..64, got {out['refine_calibration']['copies']}")
     except (ValueError, KeyError, TypeError) as e:
         raise MetadataError(f"{source}: malformed refine_calibration metadata ({e}); re-run 'equipose calibrate "
                             "--model'") from None
