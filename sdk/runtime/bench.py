@@ -117,7 +117,7 @@ def run_backend(backend: str, model_path: str, threads: int = 2, objects: int = 
     row["stages"] = {k: percentiles([s[k] for s in samples]) for k in STAGES}
     row["runs"], row["threads"], row["objects"], row["refine"] = runs, threads, objects, est.refine
     row["copies"] = est.copies
-    row["threads_used"] = 1 if spec.runs_model_file and est.uses_single_thread(objects) else threads
+    row["threads_used"] = 1 if spec.runs_model_file and est.uses_single_thread(objects * est.copies) else threads
     if note:
         row["note"] = note
     if parity is not None:

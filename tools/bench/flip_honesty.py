@@ -1,5 +1,6 @@
 """How honest is the ``ambiguous`` flag? Flip rate (errors > 150°) overall, among results flagged ambiguous and among
-those not flagged, through the SDK on a test set.
+those not flagged, through the SDK on a test set; the same by ``confidence`` and, for files that run rotated input
+copies, by ``agreement`` (the fraction of copies agreeing with the consensus).
 
 Usage: python tools/bench/flip_honesty.py MODEL CATEGORY MODE [--limit K] [--exclude-suspects]
 """
@@ -49,6 +50,14 @@ def main(argv=None) -> int:
         keep = conf >= q
         print(f"  confidence ≥ {q}: {keep.mean():.2f} of results, flip rate {flip[keep].mean() if keep.any() else float('nan'):.2f}, "
               f"median {np.median(err[keep]) if keep.any() else float('nan'):.2f}°")
+    if res and res[0].agreement is not None:
+        agree = np.array([r.agreement for r in res])
+        for q in (0.5, 0.75, 1.0):
+            keep = agree >= q
+            print(f"  agreement ≥ {q}: {keep.mean():.2f} of results, flip rate "
+                  f"{flip[keep].mean() if keep.any() else float('nan'):.2f}, median "
+                  f"{np.median(err[keep]) if keep.any() else float('nan'):.2f}°, 5° "
+                  f"{np.mean(err[keep] <= 5) if keep.any() else float('nan'):.2f}")
     return 0
 
 
