@@ -24,13 +24,11 @@ from equipose.runtime.postprocess import finish_category
 from equipose.runtime.result import FrameError, PoseResult
 from equipose.runtime.upright import check_up, per_object_up, resolve_plane_up
 from equipose.models import resolve_model_file
-from equipose.runtime.session import INPUT_NAME, OUTPUT_NAMES, check_io, open_session
+from equipose.runtime.session import INPUT_NAME, OUTPUT_NAMES, check_io, open_session, run_in_chunks
 
-__all__ = ["PoseEstimator", "INPUT_NAME", "OUTPUT_NAMES", "LIGHT_MODEL_MACS", "RUN_CHUNK"]
+__all__ = ["PoseEstimator", "INPUT_NAME", "OUTPUT_NAMES", "LIGHT_MODEL_MACS"]
 
 LIGHT_MODEL_MACS = 1e9      # below this per object, a single object runs on one onnxruntime thread (adaptive_threads)
-RUN_CHUNK = 32              # network inputs per onnxruntime run: larger batches (objects × copies) run in chunks, which
-                            # bounds memory (an edge model needs ≈ 8 MB of activations per input)
 
 
 def _ms(t0: float) -> float:  # milliseconds since t0
@@ -194,12 +192,7 @@ class PoseEstimator:
         x = np.stack([p.model_points for p in preps])                           # [B, N, 3]
         if self.copies > 1:
             x = rotate_copies(x, self.copy_rotations)                           # [B·K, N, 3]
-        run = self.runner or self.run_model
-        if len(x) <= RUN_CHUNK:
-            outputs = run(x)
-        else:
-            parts = [run(x[i:i + RUN_CHUNK]) for i in range(0, len(x), RUN_CHUNK)]
-            outputs = {k: np.concatenate([p[k] for p in parts]) for k in OUTPUT_NAMES}
+        outputs = run_in_chunks(self.runner or self.run_model, x)                # ≤ RUN_CHUNK inputs per run
         inf_ms = _ms(t0)
         results = []
         for b, prep in enumerate(preps):

@@ -7,13 +7,25 @@ from __future__ import annotations
 
 import pathlib
 
+import numpy as np
+
 from equipose.core.errors import ModelFormatError
 from equipose.core.metadata import decode_metadata
 
-__all__ = ["INPUT_NAME", "OUTPUT_NAMES", "open_session", "check_io", "read_metadata"]
+__all__ = ["INPUT_NAME", "OUTPUT_NAMES", "RUN_CHUNK", "open_session", "check_io", "read_metadata", "run_in_chunks"]
 
 INPUT_NAME = "points"
 OUTPUT_NAMES = ("canonical_shape", "hypothesis_rotations", "hypothesis_translations", "hypothesis_scores")
+RUN_CHUNK = 32              # network inputs per onnxruntime run: larger batches (objects × copies) run in chunks, which
+                            # bounds memory (an edge model needs ≈ 8 MB of activations per input)
+
+
+def run_in_chunks(run, x, chunk: int = RUN_CHUNK) -> dict:
+    """``run`` (inputs [B, N, 3] → the 4 output arrays) over ``x`` in pieces of at most ``chunk``, outputs joined."""
+    if len(x) <= chunk:
+        return run(x)
+    parts = [run(x[i:i + chunk]) for i in range(0, len(x), chunk)]
+    return {k: np.concatenate([p[k] for p in parts]) for k in OUTPUT_NAMES}
 
 
 def open_session(path, threads: int | None):

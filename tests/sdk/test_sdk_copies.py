@@ -119,7 +119,7 @@ def test_estimator_copies_option(tiny_model):
 def test_large_batches_run_in_chunks(tiny_model):
     """Objects × copies beyond RUN_CHUNK go to the network in chunks (bounded memory), results in object order."""
     from equipose import PoseEstimator
-    from equipose.runtime.estimator import RUN_CHUNK
+    from equipose.runtime.session import RUN_CHUNK
     est = PoseEstimator(tiny_model, threads=1, refine=1, copies=3)
     net = _pca_runner(est.num_canonical_points)
     sizes = []
