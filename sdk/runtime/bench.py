@@ -165,7 +165,8 @@ def run_benchmark(model_path: str, backends=BACKENDS, threads: int = 2, objects:
                              "inference": r["stages"]["inference"]["p50_ms"] / ref["stages"]["inference"]["p50_ms"]}
               for r in rows if ref and "p50_ms" in r}
     return {"model": str(model_path), "preset": cfg.name, "threads": threads, "points": est.num_points,
-            "refine": rows[0].get("refine") if rows else None, "adaptive_threads": adaptive_threads,
+            "refine": rows[0].get("refine") if rows else None, "copies": rows[0].get("copies") if rows else None,
+            "adaptive_threads": adaptive_threads,
             "objects": objects, "macs": macs, "matmul_peak_gmacs": peak, "bound_ms": macs * objects / peak / 1e6,
             "rows": rows, "ratios": ratios}
 
@@ -175,7 +176,8 @@ def format_table(result: dict) -> str:
     rows = result["rows"]
     lines = [f"model {result['model']} (preset {result['preset']}, N={result['points']}, "
              f"{result['macs'] / 1e9:.3f} GMAC/object), {result['threads']} thread(s), {result['objects']} object(s)/frame"
-             f", ICP re-scoring of {result.get('refine') or 0} hypotheses (selection stage)",
+             f", ICP re-scoring of {result.get('refine') or 0} hypotheses (selection stage)"
+             + (f", {result['copies']} rotated input copies per object" if (result.get("copies") or 1) > 1 else ""),
              f"MatMul peak {result['matmul_peak_gmacs']:.1f} GMAC/s → bound {result['bound_ms']:.2f} ms/frame",
              f"{'backend':<18} {'p50 ms':>8} {'bound':>6} {'p95 ms':>8} {'max ms':>8} {'FPS':>8} {'RSS MB':>8} "
              f"{'size MB':>8} {'× fp32':>7}  {'crop':>6} {'fps':>6} {'infer':>7} {'× fp32':>7} {'select':>6} "
