@@ -30,8 +30,8 @@ def finish_category(est, outputs: dict, b: int, prep, *, prefer=None, prefer_mar
     """Batch item ``b`` → (PoseResult without timings, selection ms). With ``est.copies`` K > 1 the outputs hold K
     rotated copies per object (rows b·K …, ``equipose.runtime.copies``): hypotheses of copy 0, the copies' mean shape,
     and their consensus (ICP-refined like the re-scored ones) in place of its nearest hypothesis, ranked first. With
-    ``up`` the up prior selects (its own ICP,
-    so the re-scoring and the tracking preference are not used); ``result.up`` records it. Models with metadata
+    ``up`` the up prior selects (its own ICP, so the re-scoring and the tracking preference are not used);
+    ``result.up`` records it. Models with metadata
     ``rest_facet`` and no ``up`` take it from the cloud's resting face near the selected pose's up axis; models with
     ``frame_priors`` then turn the pose onto the cloud's mirror plane / footprint (``result.frame_priors``)."""
     t0 = time.perf_counter()
@@ -50,7 +50,8 @@ def finish_category(est, outputs: dict, b: int, prep, *, prefer=None, prefer_mar
         t_all = outputs["hypothesis_translations"][b]                           # [60, 3] model units
         s_all = outputs["hypothesis_scores"][b]                                 # [60]
         canon = np.asarray(outputs["canonical_shape"][b], np.float64)           # [M, 3] learned frame, model units
-    if est.refine and up is None:                                               # ICP re-scoring, learned frame
+    rescore = bool(est.refine) and up is None
+    if rescore:                                                                 # ICP re-scoring, learned frame
         R_all, t_all, s_all = refine_hypotheses(prep.model_points, canon, R_all, t_all, s_all, k=est.refine,
                                                 iters=est.refine_iters, bidirectional=not est.partial)
         if K > 1:                                                               # the consensus, refined the same way
@@ -60,7 +61,7 @@ def finish_category(est, outputs: dict, b: int, prep, *, prefer=None, prefer_mar
     if K > 1:        # the consensus takes the place of its nearest hypothesis and ranks first
         R_all, t_all, s_all = np.array(R_all, np.float64), np.array(t_all, np.float64), np.array(s_all, np.float64)
         j = int(np.argmin(symmetric_distance_deg(R_c, R_all, est.symmetry)))
-        s_c = s_all[j] if not (est.refine and up is None) else s_c
+        s_c = s_c if rescore else s_all[j]                                      # its residual, or the network's
         others = np.delete(s_all, j)
         R_all[j], t_all[j] = R_c, t_c
         s_all[j] = s_c if not len(others) or s_c < others.min() else np.nextafter(others.min(), -np.inf)

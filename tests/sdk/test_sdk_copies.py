@@ -112,8 +112,12 @@ def test_estimator_copies_option(tiny_model):
     assert est.copies == 1                                                    # no refine calibration: off
     rng = np.random.default_rng(2)
     pts = rng.normal(size=(500, 3)) * [0.04, 0.03, 0.05] + [0.0, 0.0, 0.8]
-    r = PoseEstimator(tiny_model, threads=1, refine=2, copies=3).predict_points(pts)
+    est3 = PoseEstimator(tiny_model, threads=1, refine=2, copies=3)
+    r = est3.predict_points(pts)
     assert 0.0 < r.agreement <= 1.0 and np.allclose(r.rotation @ r.rotation.T, np.eye(3), atol=1e-6)
+    up = np.array([0.0, -1.0, 0.0])
+    r_up = est3.predict_points(pts, up=up)                                    # the up prior over the copies' starts
+    assert r_up.agreement is not None and np.degrees(np.arccos(np.clip(r_up.rotation[:, 2] @ up, -1, 1))) < 1e-3
 
 
 def test_large_batches_run_in_chunks(tiny_model):
