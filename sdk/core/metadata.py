@@ -43,10 +43,11 @@ import numpy as np
 from equipose.core import icosahedral
 from equipose.core.errors import MetadataError, ModelVersionError
 
-__all__ = ["FORMAT_VERSION", "REQUIRED_KEYS", "FRAME_PRIOR_STEPS", "encode_metadata", "decode_metadata"]
+__all__ = ["FORMAT_VERSION", "REQUIRED_KEYS", "FRAME_PRIOR_STEPS", "MAX_COPIES", "encode_metadata", "decode_metadata"]
 
 FORMAT_VERSION = 1
 FRAME_PRIOR_STEPS = ("rest", "mirror", "footprint")       # equipose.runtime.frame_priors
+MAX_COPIES = 64                                            # refine_calibration copies; equipose.runtime.copies
 REQUIRED_KEYS = ("equipose_format", "equipose_version", "category", "preset", "model_config", "num_points",
                  "num_canonical_points", "scale", "partial", "symmetry", "calibration_rotation",
                  "calibration_translation", "anchors", "random_init", "training", "metrics")
@@ -199,8 +200,8 @@ def decode_metadata(props: dict, source: str = "model") -> dict:
             "k": int(rc["k"]), "iters": int(rc["iters"]), "copies": int(rc.get("copies", 1)),
             "rotation": np.asarray(rc["rotation"], dtype=np.float64).reshape(3, 3),
             "translation": np.asarray(rc["translation"], dtype=np.float64).reshape(3)}
-        if rc and not 1 <= out["refine_calibration"]["copies"] <= 64:          # equipose.runtime.copies.MAX_COPIES
-            raise ValueError(f"copies must be in 1..64, got {out['refine_calibration']['copies']}")
+        if rc and not 1 <= out["refine_calibration"]["copies"] <= MAX_COPIES:
+            raise ValueError(f"copies must be in 1..{MAX_COPIES}, got {out['refine_calibration']['copies']}")
     except (ValueError, KeyError, TypeError) as e:
         raise MetadataError(f"{source}: malformed refine_calibration metadata ({e}); re-run 'equipose calibrate "
                             "--model'") from None

@@ -21,13 +21,13 @@ import numpy as np
 
 from equipose.core.errors import ConfigError, InvalidPointsError
 from equipose.core.geometry import nearest_rotation
+from equipose.core.metadata import MAX_COPIES
 from equipose.runtime.hypotheses import parse_symmetry, symmetric_distance_deg
 
 __all__ = ["copy_rotations", "rotate_copies", "undo_copies", "consensus_pose", "COPY_SEED", "AGREE_DEG", "MAX_COPIES"]
 
 COPY_SEED = 1          # the copies' rotations are fixed: seeded uniform rotations after the identity
 AGREE_DEG = 15.0       # copies whose best hypotheses lie within this of the medoid's support the consensus
-MAX_COPIES = 64
 
 
 def copy_rotations(k: int) -> np.ndarray:

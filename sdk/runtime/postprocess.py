@@ -42,7 +42,7 @@ def finish_category(est, outputs: dict, b: int, prep, *, prefer=None, prefer_mar
                              est.copy_rotations)                                # [K, 60, 3, 3], [K, 60, 3]
         sk = np.asarray(outputs["hypothesis_scores"][rows], np.float64)        # [K, 60]
         canon = np.asarray(outputs["canonical_shape"][rows], np.float64).mean(0)  # [M, 3] mean over the copies
-        R_all, t_all, s_all = Rk[0], tk[0], sk[0].copy()                        # copy 0: the input as it is
+        R_all, t_all, s_all = Rk[0], tk[0], sk[0].copy()                        # copy 0, the input as it is (writable)
         first = sk.argmin(1)                                                    # [K] each copy's best
         R_c, t_c, support = consensus_pose(Rk[np.arange(K), first], tk[np.arange(K), first], est.symmetry)
     else:
@@ -59,7 +59,6 @@ def finish_category(est, outputs: dict, b: int, prep, *, prefer=None, prefer_mar
                                    bidirectional=not est.partial)
             R_c, t_c, s_c = R1[0], t1[0], float(r1[0])
     if K > 1:        # the consensus takes the place of its nearest hypothesis and ranks first
-        R_all, t_all, s_all = np.array(R_all, np.float64), np.array(t_all, np.float64), np.array(s_all, np.float64)
         j = int(np.argmin(symmetric_distance_deg(R_c, R_all, est.symmetry)))
         s_c = s_c if rescore else s_all[j]                                      # its residual, or the network's
         others = np.delete(s_all, j)
