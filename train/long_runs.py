@@ -149,8 +149,10 @@ def _default_root():
     return default_data_root()
 
 
-def run_slice(name: str, minutes: float, *, state_dir=STATE_DIR, data_root=None, cache_dir=None, log=print) -> dict:
-    """Resume ``name`` for ``minutes`` of training steps; update its manifest; return the last validation record."""
+def run_slice(name: str, minutes: float, *, state_dir=STATE_DIR, data_root=None, cache_dir=None,
+              batch_size: int | None = None, log=print) -> dict:
+    """Resume ``name`` for ``minutes`` of training steps; update its manifest; return the last validation record.
+    ``batch_size`` overrides the config's for this slice only (e.g. a larger batch on a lent GPU)."""
     from .data import default_data_root
     from .trainer import TrainConfig, train
     folder = pathlib.Path(state_dir) / name
@@ -164,7 +166,8 @@ def run_slice(name: str, minutes: float, *, state_dir=STATE_DIR, data_root=None,
         teacher = str(repo / teacher)
     cfg = dataclasses.replace(cfg, out=str(folder), steps=before + 1_000_000, minutes=float(minutes),
                               val_every=10 ** 9, data_root=str(root), teacher=teacher,
-                              cache_dir=str(cache_dir or cfg.cache_dir or ""))
+                              cache_dir=str(cache_dir or cfg.cache_dir or ""),
+                              batch_size=int(batch_size or cfg.batch_size))
     t0 = time.time()
     durable = (folder / "config.json").read_text()                  # the trainer writes the slice's own config there
     try:
@@ -180,7 +183,8 @@ def run_slice(name: str, minutes: float, *, state_dir=STATE_DIR, data_root=None,
     man["data_version"] = data_version(root, cfg.category)
     man.setdefault("history", []).append({
         "date": datetime.date.today().isoformat(), "steps_before": before, "steps_after": after,
-        "minutes": round((time.time() - t0) / 60.0, 1),
+        "minutes": round((time.time() - t0) / 60.0, 1), "batch_size": cfg.batch_size,
+        "device": str(ck.get("training", {}).get("device", "")),
         "val_rot_median_deg": val.get("val_rot_median_deg"), "val_acc_5deg": val.get("val_acc_5deg")})
     _write_json(folder / "manifest.json", man)
     return val
@@ -209,6 +213,7 @@ def main(argv=None) -> int:
     r.add_argument("--cache-dir", help="render cache folder (default: data_cache/ beside the package)")
     o = sub.add_parser("slice", help="one slice of one model (e.g. on a lent GPU)"); o.add_argument("name")
     o.add_argument("--minutes", type=float, required=True); o.add_argument("--cache-dir")
+    o.add_argument("--batch-size", type=int, help="this slice only (default: the model's config)")
     a = sub.add_parser("adopt"); a.add_argument("name"); a.add_argument("run_dir")
     a.add_argument("--overwrite", action="store_true")
     sub.add_parser("show")
@@ -224,7 +229,8 @@ def main(argv=None) -> int:
     elif args.cmd == "adopt":
         print(args.name, "->", adopt_run(args.name, args.run_dir, state_dir=state, overwrite=args.overwrite))
     elif args.cmd == "slice":
-        print(args.name, run_slice(args.name, args.minutes, state_dir=state, cache_dir=args.cache_dir))
+        print(args.name, run_slice(args.name, args.minutes, state_dir=state, cache_dir=args.cache_dir,
+                                         batch_size=args.batch_size))
     elif args.cmd == "run":
         run_lane([n.strip() for n in args.lane.split(",") if n.strip()], args.minutes, args.slice, state_dir=state,
                  cache_dir=args.cache_dir)

@@ -6,6 +6,7 @@ units (file units / ``MODELNET_SCALE``), poses camera frame.
 """
 from __future__ import annotations
 
+import os
 import pathlib
 import time
 from dataclasses import asdict
@@ -77,14 +78,21 @@ def render_mesh_cache(mesh_path, out_path, views: int = 10, distance_m: float = 
     return out_path
 
 
+def _render_instance(job) -> list:
+    """[(points, R, t)] of one instance; ``job`` = (generator seed, shape, views, settings)."""
+    rng_seed, shape, views, settings = job
+    return render_views(shape, np.random.default_rng(list(rng_seed)), views, settings)
+
+
 def ensure_cache(root, category: str, split: str, cache_dir=None, limit: int | None = None, views: int = 10,
                  source: str = "npy1024", seed: int = 0, settings: RenderSettings | None = None,
-                 progress: bool = True, log=print) -> pathlib.Path:
+                 progress: bool = True, log=print, workers: int | None = None) -> pathlib.Path:
     """Render (once) and cache the partial views of a ModelNet category split (tabletop categories: see
     ``equipose.train.tabletop``); returns the ``.npz`` path.
 
     The cache key hashes every setting, so a changed setting renders a new cache. Seeded per instance: view k of
-    instance i depends only on (seed, split, i).
+    instance i depends only on (seed, split, i), so ``workers`` processes (default: ``EQUIPOSE_RENDER_WORKERS`` or 1)
+    render the same views.
     """
     from tqdm import tqdm
     if is_tabletop(category):     # cup / bowl / can: metric-scale tabletop data (equipose.train.tabletop)
@@ -103,10 +111,18 @@ def ensure_cache(root, category: str, split: str, cache_dir=None, limit: int | N
     pts, Rs, ts, diags, inst = [], [], [], [], []
     t0 = time.perf_counter()
     split_id = 0 if split == "train" else 1
-    for i, (cid, shape, complete) in enumerate(tqdm(shapes, desc=f"render {category}/{split}", disable=not progress)):
-        rng = np.random.default_rng([seed, split_id, i])
+    jobs = [((seed, split_id, i), shape, views, settings) for i, (_, shape, _) in enumerate(shapes)]
+    workers = max(1, int(workers if workers is not None else os.environ.get("EQUIPOSE_RENDER_WORKERS", 1)))
+    if workers > 1:                    # same views: each instance's generator depends only on (seed, split, i)
+        import multiprocessing
+        with multiprocessing.get_context("fork").Pool(workers) as pool:
+            rendered = list(tqdm(pool.imap(_render_instance, jobs, chunksize=4), total=len(jobs),
+                                 desc=f"render {category}/{split} ({workers} workers)", disable=not progress))
+    else:
+        rendered = (_render_instance(j) for j in tqdm(jobs, desc=f"render {category}/{split}", disable=not progress))
+    for i, ((_, _, complete), views_i) in enumerate(zip(shapes, rendered)):
         diag = float(np.linalg.norm(complete.max(0) - complete.min(0)))
-        for p, R, t in render_views(shape, rng, views, settings):
+        for p, R, t in views_i:
             pts.append(p); Rs.append(R); ts.append(t); diags.append(diag); inst.append(i)
     dt = time.perf_counter() - t0
     if not pts:

@@ -208,6 +208,10 @@ def train(cfg: TrainConfig, resume: bool = False, log=print) -> pathlib.Path:
         if rank == 0:
             log(f"initialised from {cfg.init} (its step {ck.get('step')}, category {ck.get('category')!r})")
     model.to(device)
+    for st in opt.state.values():                     # resumed Adam moments follow the parameters' device
+        for k, v in st.items():
+            if torch.is_tensor(v) and k != "step":
+                st[k] = v.to(device)
     net = model
     if world > 1:
         net = torch.nn.parallel.DistributedDataParallel(model, device_ids=[local] if device.type == "cuda" else None)
