@@ -32,6 +32,12 @@ def test_train_resume_calibrate_eval(tmp_path, data_root, mode):
     assert main(["calibrate", "--checkpoint", str(out / "latest.pt"), "--num", "8", "--cache-dir", str(cache)]) == 0
     cal = load_checkpoint(out / "latest.pt")["calibration"]
     assert len(cal["rotation"]) == 3 and len(cal["translation"]) == 3 and 4 <= cal["n"] <= 8
+    if mode == "complete":                   # trained on another machine: its folders are not here → the defaults
+        moved = load_checkpoint(out / "latest.pt")
+        moved["training"]["config"].update(data_root=str(tmp_path / "gone" / "data"), cache_dir=str(tmp_path / "gone"))
+        torch.save(moved, tmp_path / "moved.pt")
+        assert main(["calibrate", "--checkpoint", str(tmp_path / "moved.pt"), "--num", "4"]) == 0
+        assert not (tmp_path / "gone").exists()
 
     js, png = tmp_path / "r.json", tmp_path / "r.png"
     assert main(["eval", "--checkpoint", str(out / "latest.pt"), *common, "--mode", mode, "--limit", "2",

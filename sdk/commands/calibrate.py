@@ -8,6 +8,8 @@ axis (z) only.
 """
 from __future__ import annotations
 
+import pathlib
+
 import numpy as np
 
 
@@ -72,9 +74,11 @@ def run(args) -> int:
     category = args.category or ckpt["category"]
     mode = args.mode or ("partial" if ckpt["partial"] else "complete")
     cfg = ckpt.get("training", {}).get("config", {})
-    root = args.data_root or cfg.get("data_root") or default_data_root()
+    # the training run's folders where they exist here (a checkpoint trained on another machine names its own)
+    local = {k: cfg.get(k) for k in ("data_root", "cache_dir") if cfg.get(k) and pathlib.Path(cfg[k]).is_dir()}
+    root = args.data_root or local.get("data_root") or default_data_root()
     ds = make_dataset(root, category, mode, "train", model.num_points, train=True, limit=cfg.get("train_limit"),
-                      cache_dir=args.cache_dir or cfg.get("cache_dir") or None,
+                      cache_dir=args.cache_dir or local.get("cache_dir"),
                       render_opts={"views": args.views or cfg.get("views", 10)})
     rng = np.random.default_rng(args.seed)
     idx = rng.choice(len(ds), size=min(args.num, len(ds)), replace=False)
