@@ -4,6 +4,8 @@ The network is exactly equivariant only to the 60 icosahedral rotations; between
 error that changes with the input's orientation, and its canonical shape (the invariant branch) a little noise. One
 object's points are therefore run as ``K`` copies, each turned by a fixed rotation ``Q_k`` about its centroid, in the
 same batch; undoing the turns gives ``K`` estimates of one pose and ``K`` reconstructions of one canonical shape.
+Each copy also draws its own farthest-point sample of the object's points (``copy_samples``), so the copies' errors
+from sampling decorrelate too.
 
 Convention:
     Inputs are model units, centred at the centroid (``PreparedPoints.model_points``), so turning about the origin
@@ -24,7 +26,7 @@ from equipose.core.geometry import nearest_rotation
 from equipose.core.metadata import MAX_COPIES
 from equipose.runtime.hypotheses import parse_symmetry, symmetric_distance_deg
 
-__all__ = ["copy_rotations", "rotate_copies", "undo_copies", "consensus_pose", "COPY_SEED", "AGREE_DEG", "MAX_COPIES"]
+__all__ = ["copy_rotations", "copy_samples", "rotate_copies", "undo_copies", "consensus_pose", "COPY_SEED", "AGREE_DEG", "MAX_COPIES"]
 
 COPY_SEED = 1          # the copies' rotations are fixed: seeded uniform rotations after the identity
 AGREE_DEG = 15.0       # copies whose best hypotheses lie within this of the medoid's support the consensus
@@ -39,15 +41,44 @@ def copy_rotations(k: int) -> np.ndarray:
     return np.concatenate([np.eye(3)[None], rest])
 
 
+def copy_samples(cloud: np.ndarray, first: np.ndarray, rotations: np.ndarray) -> np.ndarray:
+    """Each copy's own farthest-point sample of one object: [K, N, 3] float32 model units (centred).
+
+    Copy 0 keeps ``first`` (the usual input, FPS from the point farthest from the centroid); copy k ≥ 1 runs FPS over
+    ``cloud`` [P, 3] from the point nearest to ``0.5 · rms radius · Q_k[2]`` (a fixed interior aim per copy; the
+    result does not depend on the point order), so the copies differ in sampling as well as orientation, as the
+    training draws did (random FPS starts). Where P ≤ N every sample holds the same points.
+    """
+    from equipose.preprocess.sampling import fps_order
+    c = np.asarray(cloud, np.float32)
+    x0 = np.asarray(first, np.float32)
+    Q = np.asarray(rotations, np.float64)
+    if c.ndim != 2 or c.shape[1] != 3 or x0.ndim != 2 or x0.shape[1] != 3 or Q.ndim != 3 or Q.shape[1:] != (3, 3):
+        raise InvalidPointsError(f"copy_samples needs cloud [P, 3], first [N, 3] and rotations [K, 3, 3], got "
+                                 f"{c.shape}, {x0.shape}, {Q.shape}")
+    out = np.empty((len(Q),) + x0.shape, np.float32)                           # [K, N, 3]
+    out[0] = x0
+    c64 = c.astype(np.float64)                                                 # [P, 3], centred
+    rms = float(np.sqrt(np.mean(np.einsum("ij,ij->i", c64, c64))))
+    for k in range(1, len(Q)):
+        aim = 0.5 * rms * Q[k, 2]                                              # [3] a fixed point inside the cloud
+        start = int(np.argmin(np.einsum("ij,ij->i", c64 - aim, c64 - aim)))    # the object point nearest to it
+        out[k] = c[fps_order(c, len(x0), start=start)]
+    return out
+
+
 def rotate_copies(points: np.ndarray, rotations: np.ndarray) -> np.ndarray:
-    """Centred model points [B, N, 3] → [B·K, N, 3] float32, object b's copy k at row b·K + k (``Q_k @ x``)."""
+    """Centred model points → [B·K, N, 3] float32, object b's copy k at row b·K + k (``Q_k @ x``). ``points``
+    [B, N, 3] (every copy the same points) or [B, K, N, 3] (each copy its own sample, ``copy_samples``)."""
     x = np.asarray(points, np.float64)
     Q = np.asarray(rotations, np.float64)
-    if x.ndim != 3 or x.shape[-1] != 3 or Q.ndim != 3 or Q.shape[1:] != (3, 3):
-        raise InvalidPointsError(f"rotate_copies needs points [B, N, 3] and rotations [K, 3, 3], got {x.shape}, "
-                                 f"{Q.shape}")
-    out = np.einsum("kij,bnj->bkni", Q, x)                                     # [B, K, N, 3]
-    return np.ascontiguousarray(out.reshape(-1, x.shape[1], 3), dtype=np.float32)
+    if x.ndim == 3:
+        x = np.broadcast_to(x[:, None], (x.shape[0], len(Q)) + x.shape[1:]) if Q.ndim == 3 else x
+    if x.ndim != 4 or x.shape[-1] != 3 or Q.ndim != 3 or Q.shape[1:] != (3, 3) or x.shape[1] != len(Q):
+        raise InvalidPointsError(f"rotate_copies needs points [B, N, 3] or [B, K, N, 3] and rotations [K, 3, 3], got "
+                                 f"{np.shape(points)}, {Q.shape}")
+    out = np.einsum("kij,bknj->bkni", Q, x)                                    # [B, K, N, 3]
+    return np.ascontiguousarray(out.reshape(-1, x.shape[2], 3), dtype=np.float32)
 
 
 def undo_copies(rotations: np.ndarray, translations: np.ndarray, copy_rots: np.ndarray) -> tuple:

@@ -5,7 +5,7 @@ from scipy.spatial.transform import Rotation
 
 from equipose.errors import ConfigError, InvalidPointsError
 from equipose.core.geometry import random_rotations, rotation_angle_deg
-from equipose.runtime.copies import consensus_pose, copy_rotations, rotate_copies, undo_copies
+from equipose.runtime.copies import consensus_pose, copy_rotations, copy_samples, rotate_copies, undo_copies
 
 
 def test_copy_rotations_are_fixed_and_start_with_the_identity():
@@ -42,6 +42,33 @@ def test_undo_copies_inverts_the_turn_of_each_copy():
         rotate_copies(x[0], Q)
 
 
+def test_copy_samples_differ_per_copy_and_ignore_the_point_order():
+    from equipose.preprocess.sampling import prepare_points
+    rng = np.random.default_rng(7)
+    pts = rng.normal(size=(900, 3)) * [0.05, 0.03, 0.02] + [0.0, 0.0, 0.8]    # metres
+    Q = copy_rotations(5)
+    prep = prepare_points(pts, 128, 0.1)
+    X = copy_samples(prep.cloud, prep.model_points, Q)                         # [5, 128, 3]
+    assert X.shape == (5, 128, 3) and X.dtype == np.float32
+    np.testing.assert_array_equal(X[0], prep.model_points)                    # copy 0: the usual input
+    keys = [set(map(tuple, np.round(x, 6))) for x in X]
+    cloud = set(map(tuple, np.round(prep.cloud, 6)))
+    assert all(len(k) == 128 and k <= cloud for k in keys)                     # distinct points of the object
+    assert all(keys[i] != keys[j] for i in range(5) for j in range(i))         # each copy its own sample
+    shuffled = prepare_points(pts[rng.permutation(len(pts))], 128, 0.1)
+    Xs = copy_samples(shuffled.cloud, shuffled.model_points, Q)
+    assert [set(map(tuple, np.round(x, 6))) for x in Xs] == keys               # the same samples, any point order
+    few = prepare_points(pts[:100], 128, 0.1)                                  # P ≤ N: every copy holds all points
+    Xf = copy_samples(few.cloud, few.model_points, Q)
+    assert all(set(map(tuple, np.round(x, 6))) == set(map(tuple, np.round(few.cloud, 6))) for x in Xf)
+    xc = rotate_copies(X[None], Q)                                             # [1·5, 128, 3], copy k turned by Q_k
+    np.testing.assert_allclose(xc[3], X[3] @ Q[3].T, atol=1e-6)
+    with pytest.raises(InvalidPointsError):
+        copy_samples(prep.cloud[:, :2], prep.model_points, Q)
+    with pytest.raises(InvalidPointsError):
+        rotate_copies(X[None, :3], Q)                                          # K of the points ≠ K rotations
+
+
 def test_consensus_averages_the_agreeing_copies_and_ignores_the_others():
     rng = np.random.default_rng(1)
     R0 = random_rotations(1, seed=7)[0]
@@ -67,7 +94,7 @@ def test_consensus_averages_the_agreeing_copies_and_ignores_the_others():
 def _pca_runner(num_canonical):
     """A stand-in network that is exactly rotation-equivariant: hypothesis 0 is the principal axes of the input
     (signs from the third moments), the others fixed turns of it scored worse; the canonical shape is the input in
-    that frame."""
+    that frame, sorted (invariant to the point order, as a decoder's output is)."""
     turns = random_rotations(59, seed=2)
 
     def run(x):
@@ -80,7 +107,8 @@ def _pca_runner(num_canonical):
             V = V * np.sign(((x[b] @ V) ** 3).sum(0))
             V[:, 2] *= np.linalg.det(V)
             R[b, 0], R[b, 1:] = V, V @ turns
-            canon[b] = np.resize(x[b] @ V, (num_canonical, 3))
+            y = x[b] @ V
+            canon[b] = np.resize(y[np.argsort(y[:, 0])], (num_canonical, 3))   # independent of the point order
         return {"hypothesis_rotations": R.astype(np.float32), "hypothesis_translations": np.zeros((B, 60, 3), np.float32),
                 "hypothesis_scores": S.astype(np.float32), "canonical_shape": canon.astype(np.float32)}
     return run
@@ -89,10 +117,11 @@ def _pca_runner(num_canonical):
 def test_estimator_copies_agree_for_an_equivariant_network(tiny_model):
     from equipose import PoseEstimator
     rng = np.random.default_rng(4)
-    pts = rng.gamma(2.0, size=(600, 3)) * [0.03, 0.02, 0.012]                 # skewed, anisotropic: a unique frame
-    pts = pts @ random_rotations(1, seed=5)[0].T + [0.02, -0.01, 0.7]
     one = PoseEstimator(tiny_model, threads=1, refine=3, copies=1)
     four = PoseEstimator(tiny_model, threads=1, refine=3, copies=4)
+    # as many points as the model takes: every copy's sample holds them all, so only the turns differ
+    pts = rng.gamma(2.0, size=(one.num_points, 3)) * [0.03, 0.02, 0.012]     # skewed, anisotropic: a unique frame
+    pts = pts @ random_rotations(1, seed=5)[0].T + [0.02, -0.01, 0.7]
     for est in (one, four):
         est.runner = _pca_runner(est.num_canonical_points)
     r1, r4 = one.predict_points(pts), four.predict_points(pts)
@@ -133,7 +162,7 @@ def test_large_batches_run_in_chunks(tiny_model):
         return net(x)
     est.runner = counting
     rng = np.random.default_rng(6)
-    base = rng.gamma(2.0, size=(400, 3)) * [0.03, 0.02, 0.012]
+    base = rng.gamma(2.0, size=(est.num_points, 3)) * [0.03, 0.02, 0.012]
     turns = random_rotations(15, seed=8)
     res = est.predict_points_batch([base @ Q.T + [0.0, 0.0, 0.7] for Q in turns])   # 15 objects × 3 copies = 45
     assert max(sizes) <= RUN_CHUNK and sum(sizes) == 45
