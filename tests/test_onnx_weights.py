@@ -103,3 +103,9 @@ def test_seed_and_one_slice_accumulate_steps(tmp_path, data_root):
     assert after["history"][-1]["val_rot_median_deg"] is not None
     ck = torch.load(state / "bottle-complete" / "latest.pt", map_location="cpu", weights_only=True)
     assert ck["optimizer"] is not None and ck["step"] == after["step_counter"]
+    assert after["history"][-1]["batch_size"] == cfg["batch_size"] and after["history"][-1]["device"] == "cpu"
+    long_runs.run_slice("bottle-complete", 0.001, state_dir=state, data_root=data_root, batch_size=3,
+                        log=lambda *a: None)                                   # e.g. a larger batch on a lent GPU
+    again = json.loads((state / "bottle-complete" / "manifest.json").read_text())
+    assert again["history"][-1]["batch_size"] == 3 and again["step_counter"] > after["step_counter"]
+    assert (state / "bottle-complete" / "config.json").read_text() == durable   # for that slice only

@@ -132,3 +132,16 @@ def test_mesh_readers_and_render(data_root):
     pts = crop_points(depth, K, mask=mask, depth_unit="mm").points
     from scipy.spatial import cKDTree
     assert np.percentile(cKDTree(V + t).query(pts)[0], 99) < 5e-3               # on the mesh surface
+
+
+def test_partial_cache_renders_the_same_views_on_several_workers(data_root, tmp_path):
+    """Views are seeded per instance, so the cache does not depend on how many processes render it."""
+    from equipose.train.render_cache import ensure_cache
+    a = ensure_cache(data_root, "bottle", "test", cache_dir=tmp_path / "one", limit=3, views=2, progress=False,
+                     log=lambda *_: None)
+    b = ensure_cache(data_root, "bottle", "test", cache_dir=tmp_path / "two", limit=3, views=2, progress=False,
+                     log=lambda *_: None, workers=2)
+    assert a.name == b.name                                           # one key: workers are not a setting
+    za, zb = np.load(a), np.load(b)
+    for k in ("points", "offsets", "rotations", "translations", "diags", "instances"):
+        assert np.array_equal(za[k], zb[k]), k
