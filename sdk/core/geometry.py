@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-__all__ = ["quaternion_to_matrix", "matrix_to_quaternion", "rotation_angle_deg", "axis_angle_deg", "backproject",
+__all__ = ["farthest_point_orders", "quaternion_to_matrix", "matrix_to_quaternion", "rotation_angle_deg", "axis_angle_deg", "backproject",
            "farthest_point_order", "random_rotations", "rotation_between", "nearest_rotation"]
 
 
@@ -93,6 +93,37 @@ def farthest_point_order(points: np.ndarray, n: int, start: int = 0) -> np.ndarr
         minimum(d, t, out=d)
     if n > P:
         idx = np.resize(idx, int(n))
+    return idx
+
+
+def farthest_point_orders(points: np.ndarray, n: int, starts) -> np.ndarray:
+    """``farthest_point_order`` from several starts at once: indices [S, n] of ``points`` [P, 3], row s the nested
+    order from ``starts[s]``. One loop for all starts (each step a [S, 5] × [5, P] product), so S orders cost about
+    what one does when P is a few thousand."""
+    p = np.asarray(points, dtype=np.float64)
+    P = len(p)
+    st = np.asarray(starts, dtype=np.int64).reshape(-1)                       # [S]
+    if P == 0:
+        raise ValueError("farthest_point_orders: no points")
+    if len(st) and (st.min() < 0 or st.max() >= P):
+        raise ValueError(f"farthest_point_orders: starts must index the {P} points, got {st.tolist()}")
+    p = (p - p.mean(0)).astype(np.float32)                                      # [P, 3] centred
+    sq = np.einsum("ij,ij->i", p, p)[:, None]                                   # [P, 1]
+    one = np.ones((P, 1), np.float32)
+    rows_t = np.ascontiguousarray(np.concatenate([p, sq, one], 1).T)            # [5, P]
+    cols = np.concatenate([-2.0 * p, one, sq], 1)                               # [P, 5]
+    m = min(int(n), P)
+    idx = np.empty((len(st), m), dtype=np.int64)                                # [S, m]
+    idx[:, 0] = st
+    d = cols[st] @ rows_t                                                       # [S, P] squared distance to each set
+    t = np.empty_like(d)
+    for i in range(1, m):
+        j = d.argmax(1)                                                         # [S]
+        idx[:, i] = j
+        np.matmul(cols[j], rows_t, out=t)
+        np.minimum(d, t, out=d)
+    if n > P:                                                                   # wrap each order, as above
+        idx = np.stack([np.resize(r, int(n)) for r in idx]) if len(st) else np.empty((0, int(n)), np.int64)
     return idx
 
 

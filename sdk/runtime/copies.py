@@ -22,7 +22,7 @@ from __future__ import annotations
 import numpy as np
 
 from equipose.core.errors import ConfigError, InvalidPointsError
-from equipose.core.geometry import nearest_rotation
+from equipose.core.geometry import farthest_point_orders, nearest_rotation
 from equipose.core.metadata import MAX_COPIES
 from equipose.runtime.hypotheses import parse_symmetry, symmetric_distance_deg
 
@@ -49,21 +49,23 @@ def copy_samples(cloud: np.ndarray, first: np.ndarray, rotations: np.ndarray) ->
     result does not depend on the point order), so the copies differ in sampling as well as orientation, as the
     training draws did (random FPS starts). Where P ≤ N every sample holds the same points.
     """
-    from equipose.preprocess.sampling import fps_order
     c = np.asarray(cloud, np.float32)
     x0 = np.asarray(first, np.float32)
     Q = np.asarray(rotations, np.float64)
     if c.ndim != 2 or c.shape[1] != 3 or x0.ndim != 2 or x0.shape[1] != 3 or Q.ndim != 3 or Q.shape[1:] != (3, 3):
         raise InvalidPointsError(f"copy_samples needs cloud [P, 3], first [N, 3] and rotations [K, 3, 3], got "
                                  f"{c.shape}, {x0.shape}, {Q.shape}")
+    if not len(c):
+        raise InvalidPointsError("copy_samples got no points")
     out = np.empty((len(Q),) + x0.shape, np.float32)                           # [K, N, 3]
     out[0] = x0
-    c64 = c.astype(np.float64)                                                 # [P, 3], centred
-    rms = float(np.sqrt(np.mean(np.einsum("ij,ij->i", c64, c64))))
-    for k in range(1, len(Q)):
-        aim = 0.5 * rms * Q[k, 2]                                              # [3] a fixed point inside the cloud
-        start = int(np.argmin(np.einsum("ij,ij->i", c64 - aim, c64 - aim)))    # the object point nearest to it
-        out[k] = c[fps_order(c, len(x0), start=start)]
+    if len(Q) > 1:
+        c64 = c.astype(np.float64)                                             # [P, 3], centred
+        rms = float(np.sqrt(np.mean(np.einsum("ij,ij->i", c64, c64))))
+        aims = 0.5 * rms * Q[1:, 2]                                            # [K−1, 3] fixed points inside the cloud
+        d2 = ((c64[None] - aims[:, None]) ** 2).sum(-1)                        # [K−1, P]
+        starts = d2.argmin(1)                                                  # the object points nearest to them
+        out[1:] = c[farthest_point_orders(c, len(x0), starts)]                 # [K−1, N, 3], one FPS loop for all
     return out
 
 

@@ -5,7 +5,7 @@ import pytest
 from conftest import K_VGA, sphere_scene, tabletop_scene
 from equipose.preprocess import (auto_masks, check_intrinsics, crop_points, fps_order, nearest_depth_cluster,
                            prepare_points, statistical_outlier_mask)
-from equipose.core.geometry import farthest_point_order
+from equipose.core.geometry import farthest_point_order, farthest_point_orders
 
 CENTRE, RADIUS = np.array([0.02, -0.01, 0.8]), 0.05
 
@@ -86,6 +86,21 @@ def test_prepare_points_is_fps_ordered_and_invertible():
     # fewer points than N: the order wraps around
     small = prepare_points(res.points[:100], 256, 0.25)
     assert small.model_points.shape == (256, 3) and len(np.unique(small.order)) == 100
+
+
+def test_farthest_point_orders_from_several_starts_match_one_at_a_time():
+    rng = np.random.default_rng(11)
+    pts = rng.normal(size=(700, 3)) * [0.3, 0.2, 0.05]
+    starts = [0, 5, 699, 5]
+    many = farthest_point_orders(pts, 128, starts)                              # [4, 128]
+    assert many.shape == (4, 128)
+    for s, row in zip(starts, many):
+        np.testing.assert_array_equal(row, farthest_point_order(pts, 128, start=s))
+    wrapped = farthest_point_orders(pts[:50], 128, [3, 7])                      # fewer points than n: each order wraps
+    for s, row in zip([3, 7], wrapped):
+        np.testing.assert_array_equal(row, farthest_point_order(pts[:50], 128, start=s))
+    with pytest.raises(ValueError):
+        farthest_point_orders(pts, 16, [700])
 
 
 def test_auto_masks_find_both_objects_on_the_table():
