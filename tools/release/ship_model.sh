@@ -4,6 +4,7 @@
 # and store its metrics in its own metadata; also the plain network (--refine 0) for reference.
 # Usage: tools/release/ship_model.sh NAME RUN_DIR CATEGORY MODE [CALIB_NUM] [ICP_SAMPLES]
 #   e.g. tools/release/ship_model.sh airplane-partial runs/airplane_partial_edge airplane partial
+#   RUN_DIR "-": keep the network of sdk/models/NAME{,.int8}.onnx; re-calibrate and re-measure them (an SDK change)
 # Environment (deploying a network trained on another data set, e.g. a complete-shape network on tabletop depth):
 #   SCALE=m/unit  EXPORT_CATEGORY=name  EVAL_MODE=complete|partial (test set; default MODE)  REFINE=0 (no ICP
 #   re-scoring calibration: the file then runs the plain network by default)  REFINE_ITERS=N (ICP iterations of the
@@ -19,10 +20,14 @@ set -euo pipefail
 NAME=$1; RUN=$2; CAT=$3; MODE=$4; NUM=${5:-512}; ICPN=${6:-100}
 EQ=${EQ:-.venv/bin/equipose}
 EVAL_MODE=${EVAL_MODE:-$MODE}; REFINE=${REFINE:-5}; ECAT=${EXPORT_CATEGORY:-$CAT}
-VIEWS=$(python3 -c "import json;print(json.load(open('$RUN/config.json')).get('views', 10))")
 OUT=docs/results/models; mkdir -p "$OUT"
-$EQ calibrate --checkpoint "$RUN/latest.pt" --num "$NUM" --out "$RUN/calibrated.pt" | tee "$RUN/calibrate.log"
-$EQ export --checkpoint "$RUN/calibrated.pt" -o "sdk/models/$NAME.onnx" --int8 --category "$ECAT" ${SCALE:+--scale $SCALE}
+if [ "$RUN" = "-" ]; then          # the files already in sdk/models: re-calibrate and re-measure them (an SDK change)
+  VIEWS=10
+else
+  VIEWS=$(python3 -c "import json;print(json.load(open('$RUN/config.json')).get('views', 10))")
+  $EQ calibrate --checkpoint "$RUN/latest.pt" --num "$NUM" --out "$RUN/calibrated.pt" | tee "$RUN/calibrate.log"
+  $EQ export --checkpoint "$RUN/calibrated.pt" -o "sdk/models/$NAME.onnx" --int8 --category "$ECAT" ${SCALE:+--scale $SCALE}
+fi
 for F in "$NAME" "$NAME.int8"; do
   if [ "$REFINE" != 0 ]; then
     $EQ calibrate --model "sdk/models/$F.onnx" --num "$NUM" --views "$VIEWS" --refine "$REFINE" \
