@@ -44,3 +44,17 @@ def test_shipped_training_state_loads_with_weights_only():
     for p in paths:
         ck = load_checkpoint(p)
         assert ck["step"] > 0 and ck["state_dict"]
+
+
+def test_optimizer_state_follows_the_parameters_device():
+    """A resumed Adam's moments load on the CPU; optimizer_to moves them (not the step counters) to the device."""
+    import torch
+    from equipose.train.checkpoint import optimizer_to
+    w = torch.nn.Parameter(torch.ones(3))
+    opt = torch.optim.Adam([w], lr=0.1)
+    w.sum().backward()
+    opt.step()
+    optimizer_to(opt, torch.device("meta"))                                    # any other device than the CPU
+    st = opt.state[w]
+    assert st["exp_avg"].device.type == "meta" and st["exp_avg_sq"].device.type == "meta"
+    assert st["step"].device.type == "cpu"

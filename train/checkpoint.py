@@ -26,7 +26,8 @@ from equipose.core.presets import ModelConfig
 
 from equipose.train.model import EquiPoseNet
 
-__all__ = ["save_checkpoint", "load_checkpoint", "model_from_checkpoint", "clean_state_dict", "CHECKPOINT_FORMAT"]
+__all__ = ["save_checkpoint", "load_checkpoint", "model_from_checkpoint", "clean_state_dict", "optimizer_to",
+           "CHECKPOINT_FORMAT"]
 
 CHECKPOINT_FORMAT = 1
 _CONSTANT_BUFFERS = ("kernel_t", "kernel_sq", "kernel_aug", "table", "anchors", "anchors_cat")
@@ -67,6 +68,15 @@ def load_checkpoint(path) -> dict:
     if not isinstance(ckpt, dict) or ckpt.get("format") != CHECKPOINT_FORMAT:
         raise ConfigError(f"{path} is not an equipose checkpoint (format {CHECKPOINT_FORMAT})")
     return ckpt
+
+
+def optimizer_to(opt, device) -> None:
+    """Move a (resumed) optimiser's state tensors to ``device`` in place — Adam's moments are loaded where the
+    checkpoint was read (the CPU) and must sit with the parameters; ``step`` counters stay where they are."""
+    for st in opt.state.values():
+        for k, v in st.items():
+            if torch.is_tensor(v) and k != "step":
+                st[k] = v.to(device)
 
 
 def clean_state_dict(state: dict) -> dict:

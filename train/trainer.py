@@ -25,7 +25,7 @@ from tqdm import tqdm
 
 from equipose.core.errors import ConfigError
 
-from equipose.train.checkpoint import load_checkpoint, save_checkpoint
+from equipose.train.checkpoint import load_checkpoint, optimizer_to, save_checkpoint
 from equipose.train.data import collate, make_dataset
 from equipose.train.modelnet import MODELNET_SCALE, category_symmetry, default_data_root
 from equipose.train.inference import calibrate_model, predict_torch
@@ -208,10 +208,7 @@ def train(cfg: TrainConfig, resume: bool = False, log=print) -> pathlib.Path:
         if rank == 0:
             log(f"initialised from {cfg.init} (its step {ck.get('step')}, category {ck.get('category')!r})")
     model.to(device)
-    for st in opt.state.values():                     # resumed Adam moments follow the parameters' device
-        for k, v in st.items():
-            if torch.is_tensor(v) and k != "step":
-                st[k] = v.to(device)
+    optimizer_to(opt, device)                         # resumed Adam moments follow the parameters (CPU → CUDA)
     net = model
     if world > 1:
         net = torch.nn.parallel.DistributedDataParallel(model, device_ids=[local] if device.type == "cuda" else None)

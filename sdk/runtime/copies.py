@@ -26,7 +26,7 @@ from equipose.core.geometry import farthest_point_orders, nearest_rotation
 from equipose.core.metadata import MAX_COPIES
 from equipose.runtime.hypotheses import parse_symmetry, symmetric_distance_deg
 
-__all__ = ["copy_rotations", "copy_samples", "rotate_copies", "undo_copies", "consensus_pose", "COPY_SEED", "AGREE_DEG", "MAX_COPIES"]
+__all__ = ["copy_rotations", "copy_samples", "copy_batch", "rotate_copies", "undo_copies", "consensus_pose", "COPY_SEED", "AGREE_DEG", "MAX_COPIES"]
 
 COPY_SEED = 1          # the copies' rotations are fixed: seeded uniform rotations after the identity
 AGREE_DEG = 15.0       # copies whose best hypotheses lie within this of the medoid's support the consensus
@@ -81,6 +81,12 @@ def rotate_copies(points: np.ndarray, rotations: np.ndarray) -> np.ndarray:
                                  f"{np.shape(points)}, {Q.shape}")
     out = np.einsum("kij,bknj->bkni", Q, x)                                    # [B, K, N, 3]
     return np.ascontiguousarray(out.reshape(-1, x.shape[2], 3), dtype=np.float32)
+
+
+def copy_batch(preps, rotations: np.ndarray) -> np.ndarray:
+    """The network input of several objects' copies: ``PreparedPoints`` list → [B·K, N, 3] float32, object b's copy
+    k (its own sample, turned by ``Q_k``) at row b·K + k."""
+    return rotate_copies(np.stack([copy_samples(p.cloud, p.model_points, rotations) for p in preps]), rotations)
 
 
 def undo_copies(rotations: np.ndarray, translations: np.ndarray, copy_rots: np.ndarray) -> tuple:

@@ -18,7 +18,7 @@ from equipose.core.errors import ConfigError, EquiposeError, InvalidPointsError,
 from equipose.runtime.hypotheses import parse_symmetry
 from equipose.core.metadata import decode_metadata
 from equipose.core.presets import ModelConfig, total_macs
-from equipose.runtime.copies import copy_rotations, copy_samples, rotate_copies
+from equipose.runtime.copies import copy_batch, copy_rotations
 from equipose.runtime.instance import build_instance_model, finish_instance
 from equipose.runtime.postprocess import finish_category
 from equipose.runtime.result import FrameError, PoseResult
@@ -189,11 +189,8 @@ class PoseEstimator:
 
     def _infer(self, preps, crops, fps_ms, crop_ms, counts, prefer=None, prefer_margin=0.0, ups=None) -> list:
         t0 = time.perf_counter()
-        if self.copies > 1:                                                     # [B, K, N, 3] → [B·K, N, 3]
-            x = rotate_copies(np.stack([copy_samples(p.cloud, p.model_points, self.copy_rotations) for p in preps]),
-                              self.copy_rotations)
-        else:
-            x = np.stack([p.model_points for p in preps])                       # [B, N, 3]
+        x = copy_batch(preps, self.copy_rotations) if self.copies > 1 else \
+            np.stack([p.model_points for p in preps])                           # [B·K, N, 3] or [B, N, 3]
         outputs = run_in_chunks(self.runner or self.run_model, x)                # ≤ RUN_CHUNK inputs per run
         inf_ms = _ms(t0)
         results = []
