@@ -64,6 +64,18 @@ def backproject(depth_m: np.ndarray, K: np.ndarray, mask: np.ndarray | None = No
     return np.stack([x, y, z], 1).astype(np.float32), np.stack([rows, cols], 1)
 
 
+def _distance_tables(points: np.ndarray, caller: str) -> tuple:
+    """Augmented float32 rows of the centred points for ``‖x − y‖² = [x, ‖x‖², 1] · [−2y, 1, ‖y‖²]``:
+    (rows_t [5, P] with the points along the fast axis, cols [P, 5] whose row j is the query y_j)."""
+    p = np.asarray(points, dtype=np.float64)
+    if len(p) == 0:
+        raise ValueError(f"{caller}: no points")
+    p = (p - p.mean(0)).astype(np.float32)                                      # [P, 3] centred
+    sq = np.einsum("ij,ij->i", p, p)[:, None]                                   # [P, 1]
+    one = np.ones((len(p), 1), np.float32)
+    return np.ascontiguousarray(np.concatenate([p, sq, one], 1).T), np.concatenate([-2.0 * p, one, sq], 1)
+
+
 def farthest_point_order(points: np.ndarray, n: int, start: int = 0) -> np.ndarray:
     """Greedy farthest-point sampling: indices [n] of ``points`` [P, 3], nested (its first k are FPS(k)).
 
@@ -71,15 +83,8 @@ def farthest_point_order(points: np.ndarray, n: int, start: int = 0) -> np.ndarr
     float32 mat-vec of augmented rows ``[x, ‖x‖², 1] · [−2y, 1, ‖y‖²] = ‖x − y‖²`` (points centred first, which keeps
     the expansion exact to float32 precision), one in-place minimum and one argmax.
     """
-    p = np.asarray(points, dtype=np.float64)
-    P = len(p)
-    if P == 0:
-        raise ValueError("farthest_point_order: no points")
-    p = (p - p.mean(0)).astype(np.float32)                                      # [P, 3] centred
-    sq = np.einsum("ij,ij->i", p, p)[:, None]                                   # [P, 1]
-    one = np.ones((P, 1), np.float32)
-    rows_t = np.ascontiguousarray(np.concatenate([p, sq, one], 1).T)            # [5, P] (points along the fast axis)
-    cols = np.concatenate([-2.0 * p, one, sq], 1)                               # [P, 5]  (row j: the query y_j)
+    rows_t, cols = _distance_tables(points, "farthest_point_order")            # [5, P], [P, 5]
+    P = cols.shape[0]
     m = min(int(n), P)
     idx = np.empty(m, dtype=np.int64)
     idx[0] = start
@@ -100,18 +105,11 @@ def farthest_point_orders(points: np.ndarray, n: int, starts) -> np.ndarray:
     """``farthest_point_order`` from several starts at once: indices [S, n] of ``points`` [P, 3], row s the nested
     order from ``starts[s]``. One loop for all starts (each step a [S, 5] × [5, P] product), so S orders cost about
     what one does when P is a few thousand."""
-    p = np.asarray(points, dtype=np.float64)
-    P = len(p)
+    rows_t, cols = _distance_tables(points, "farthest_point_orders")           # [5, P], [P, 5]
+    P = cols.shape[0]
     st = np.asarray(starts, dtype=np.int64).reshape(-1)                       # [S]
-    if P == 0:
-        raise ValueError("farthest_point_orders: no points")
     if len(st) and (st.min() < 0 or st.max() >= P):
         raise ValueError(f"farthest_point_orders: starts must index the {P} points, got {st.tolist()}")
-    p = (p - p.mean(0)).astype(np.float32)                                      # [P, 3] centred
-    sq = np.einsum("ij,ij->i", p, p)[:, None]                                   # [P, 1]
-    one = np.ones((P, 1), np.float32)
-    rows_t = np.ascontiguousarray(np.concatenate([p, sq, one], 1).T)            # [5, P]
-    cols = np.concatenate([-2.0 * p, one, sq], 1)                               # [P, 5]
     m = min(int(n), P)
     idx = np.empty((len(st), m), dtype=np.int64)                                # [S, m]
     idx[:, 0] = st
