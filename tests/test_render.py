@@ -145,3 +145,6 @@ def test_partial_cache_renders_the_same_views_on_several_workers(data_root, tmp_
     za, zb = np.load(a), np.load(b)
     for k in ("points", "offsets", "rotations", "translations", "diags", "instances"):
         assert np.array_equal(za[k], zb[k]), k
+    from equipose.core.errors import ConfigError
+    with pytest.raises(ConfigError, match="workers"):
+        ensure_cache(data_root, "bottle", "test", cache_dir=tmp_path / "three", limit=3, views=2, workers=0)

@@ -112,7 +112,10 @@ def ensure_cache(root, category: str, split: str, cache_dir=None, limit: int | N
     t0 = time.perf_counter()
     split_id = 0 if split == "train" else 1
     jobs = [((seed, split_id, i), shape, views, settings) for i, (_, shape, _) in enumerate(shapes)]
-    workers = max(1, int(workers if workers is not None else os.environ.get("EQUIPOSE_RENDER_WORKERS", 1)))
+    workers = workers if workers is not None else os.environ.get("EQUIPOSE_RENDER_WORKERS", "1")
+    if not str(workers).isdigit() or int(workers) < 1:
+        raise ConfigError(f"render workers must be a whole number ≥ 1 (EQUIPOSE_RENDER_WORKERS), got {workers!r}")
+    workers = int(workers)
     if workers > 1:                    # same views: each instance's generator depends only on (seed, split, i)
         import multiprocessing
         with multiprocessing.get_context("fork").Pool(workers) as pool:

@@ -14,8 +14,8 @@
 #   command "bash tools/release/gpu_teachers.sh remote 12 car-complete airplane-complete", carry ["gpu_pack"],
 #   timeout_s 600 (two 12-minute slices do not fit one 10-minute command: give each call the minutes it can hold);
 #   then fetch FILES_AT car-complete airplane-complete, and commit train/state.
-# Measured on an H100 (16 cores), BATCH=32: chair-partial 3844 steps in 6.5 min of training (≈ 0.1 s per step), sofa-partial
-# 2928 in 5.5; a student's first call also renders its views on 16 cores and computes teacher targets (≈ 3.5 min;
+# Measured on an H100 (16 cores), BATCH=32: chair-partial 3844 steps in 6.5 min of training (≈ 0.1 s per step),
+# sofa-partial 2928 in 5.5; a student's first call also renders its views on 16 cores and computes teacher targets (≈ 3.5 min;
 # both stay on the machine while it is warm, 30 s idle). Leave ~2 min of the device budget spare: a call cut by the
 # budget brings nothing back.
 # gpu_pack/ holds only modelnet40_npy1024/<category> of each model (≈ 12 KB per shape: car 3.6 MB, airplane 8.7 MB),
@@ -41,8 +41,8 @@ case "$cmd" in
          "over it: '$0 hide' before the run, '$0 unhide' after" ;;
   hide)     # keep the shipped ONNX files and result docs (not needed there) out of what travels, index only
     EXCLUDE=$(git rev-parse --git-path info/exclude)
-    printf '/sdk/models/\n/docs/results/\n' >> "$EXCLUDE"
-    git rm -r --cached -q sdk/models docs/results ;;
+    grep -qx "/sdk/models/" "$EXCLUDE" 2>/dev/null || printf '/sdk/models/\n/docs/results/\n' >> "$EXCLUDE"
+    git rm -r --cached -q --ignore-unmatch sdk/models docs/results ;;
   unhide)
     git reset -q -- sdk/models docs/results
     EXCLUDE=$(git rev-parse --git-path info/exclude)
