@@ -10,8 +10,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-__all__ = ["farthest_point_orders", "quaternion_to_matrix", "matrix_to_quaternion", "rotation_angle_deg", "axis_angle_deg", "backproject",
-           "farthest_point_order", "random_rotations", "rotation_between", "nearest_rotation"]
+__all__ = ["quaternion_to_matrix", "matrix_to_quaternion", "rotation_angle_deg", "axis_angle_deg", "backproject",
+           "farthest_point_order", "farthest_point_orders", "random_rotations", "rotation_between", "nearest_rotation"]
 
 
 def quaternion_to_matrix(q) -> np.ndarray:

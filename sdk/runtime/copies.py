@@ -27,8 +27,8 @@ from equipose.core.geometry import farthest_point_orders, nearest_rotation
 from equipose.core.metadata import MAX_COPIES
 from equipose.runtime.hypotheses import parse_symmetry, symmetric_distance_deg
 
-__all__ = ["copy_rotations", "copy_samples", "copy_batch", "rotate_copies", "undo_copies", "consensus_pose", "COPY_SEED",
-           "AGREE_DEG", "MAX_COPIES"]
+__all__ = ["copy_rotations", "copy_samples", "copy_batch", "rotate_copies", "undo_copies", "consensus_pose",
+           "COPY_SEED", "AGREE_DEG", "MAX_COPIES"]
 
 COPY_SEED = 1          # the copies' rotations are fixed: seeded uniform rotations after the identity
 AGREE_DEG = 15.0       # copies whose best hypotheses lie within this of the medoid's support the consensus
@@ -76,8 +76,8 @@ def rotate_copies(points: np.ndarray, rotations: np.ndarray) -> np.ndarray:
     [B, N, 3] (every copy the same points) or [B, K, N, 3] (each copy its own sample, ``copy_samples``)."""
     x = np.asarray(points, np.float64)
     Q = np.asarray(rotations, np.float64)
-    if x.ndim == 3:
-        x = np.broadcast_to(x[:, None], (x.shape[0], len(Q)) + x.shape[1:]) if Q.ndim == 3 else x
+    if x.ndim == 3 and Q.ndim == 3:                                            # one sample for every copy
+        x = np.broadcast_to(x[:, None], (x.shape[0], len(Q)) + x.shape[1:])    # [B, K, N, 3]
     if x.ndim != 4 or x.shape[-1] != 3 or Q.ndim != 3 or Q.shape[1:] != (3, 3) or x.shape[1] != len(Q):
         raise InvalidPointsError(f"rotate_copies needs points [B, N, 3] or [B, K, N, 3] and rotations [K, 3, 3], got "
                                  f"{np.shape(points)}, {Q.shape}")

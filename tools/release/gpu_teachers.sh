@@ -15,9 +15,9 @@
 #   timeout_s 600 (two 12-minute slices do not fit one 10-minute command: give each call the minutes it can hold);
 #   then fetch FILES_AT car-complete airplane-complete, and commit train/state.
 # Measured on an H100 (16 cores), BATCH=32: chair-partial 3844 steps in 6.5 min of training (≈ 0.1 s per step),
-# sofa-partial 2928 in 5.5; a student's first call also renders its views on 16 cores and computes teacher targets (≈ 3.5 min;
-# both stay on the machine while it is warm, 30 s idle). Leave ~2 min of the device budget spare: a call cut by the
-# budget brings nothing back.
+# sofa-partial 2928 in 5.5; a student's first call also renders its views on 16 cores and computes teacher targets
+# (≈ 3.5 min; both stay on the machine while it is warm, 30 s idle). Leave ~2 min of the device budget spare: a call
+# cut by the budget brings nothing back.
 # gpu_pack/ holds only modelnet40_npy1024/<category> of each model (≈ 12 KB per shape: car 3.6 MB, airplane 8.7 MB),
 # far under the 64 MiB that travels. The device has python3 with torch (CUDA), scipy, tqdm, opencv, onnx.
 set -euo pipefail
