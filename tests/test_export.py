@@ -325,6 +325,16 @@ def test_refined_calibration_round_trip(tiny_ckpt, tmp_path, rng):
     assert PoseEstimator(path, threads=1).copies == 3
     assert PoseEstimator(path, threads=1, refine=0).copies == 1              # the plain network runs one copy
     assert PoseEstimator(path, threads=1, copies=2).copies == 2
+    assert cal3["visibility"] is None and PoseEstimator(path, threads=1).visibility is None
+    calv = calibrate_onnx_refined(path, canon, k=2, iters=3, visibility=1.0)   # recorded; calibrated without it
+    np.testing.assert_allclose(calv["rotation"], calibrate_onnx_refined(path, canon, k=2, iters=3)["rotation"])
+    update_metadata(path, refine_calibration=calv)
+    assert PoseEstimator(path, threads=1).visibility == 1.0                  # "auto": the file's (a partial model)
+    assert PoseEstimator(path, threads=1, refine=0).visibility is None       # no re-scoring, nothing to rank
+    assert PoseEstimator(path, threads=1, visibility=None).visibility is None
+    with pytest.raises(MetadataError):
+        update_metadata(path, refine_calibration={**calv, "visibility": 40.0})
+    update_metadata(path, refine_calibration=cal3)
     before = path.read_bytes()
     with pytest.raises(MetadataError):                                       # validated before writing …
         update_metadata(path, refine_calibration={"k": 2})

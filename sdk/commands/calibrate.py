@@ -12,6 +12,8 @@ import pathlib
 
 import numpy as np
 
+from equipose.core.errors import ConfigError
+
 
 def add_arguments(p) -> None:
     src = p.add_mutually_exclusive_group(required=True)
@@ -22,6 +24,9 @@ def add_arguments(p) -> None:
     p.add_argument("--refine-iters", dest="refine_iters", type=int, default=10, help="with --model: ICP iterations")
     p.add_argument("--copies", type=int, default=1,
                    help="with --model: rotated input copies per object (PoseEstimator(copies=K); default 1 = off)")
+    p.add_argument("--visibility", type=float, default=None,
+                   help="with --model, partial-view models: rank the refined hypotheses by the view-aware residual "
+                   "with this hidden-point-removal exponent (equipose.runtime.visibility; e.g. 1; default off)")
     p.add_argument("--views", type=int, default=None,
                    help="partial mode: rendered views per training instance of the cache to use (default: the "
                         "checkpoint's training setting, else 10)")
@@ -47,6 +52,8 @@ def _run_model(args) -> int:
     est = PoseEstimator(args.model, threads=1, refine=0)
     category = args.category or est.category
     mode = args.mode or ("partial" if est.partial else "complete")
+    if args.visibility is not None and not est.partial:
+        raise ConfigError(f"--visibility applies to partial-view models; {args.model} is a complete-shape model")
     root = args.data_root or default_data_root()
     ds = make_dataset(root, category, mode, "train", est.num_points, train=True, cache_dir=args.cache_dir,
                       render_opts={"views": args.views or 10})
@@ -54,10 +61,12 @@ def _run_model(args) -> int:
     idx = rng.choice(len(ds), size=min(args.num, len(ds)), replace=False)
     canon = np.stack([ds.sample(int(i), np.random.default_rng([args.seed, int(i)]))["canonical"] for i in idx])
     cal = calibrate_onnx_refined(args.model, canon, k=args.refine, iters=args.refine_iters,
-                                 unsigned_axis=(category == "can"), seed=args.seed, copies=args.copies)
+                                 unsigned_axis=(category == "can"), seed=args.seed, copies=args.copies,
+                                 visibility=args.visibility)
     cal["inputs"] = f"{len(idx)} category-frame {category}/{mode} training samples"
     update_metadata(args.model, refine_calibration=cal)
-    print(f"refined calibration (k={args.refine}, {args.refine_iters} ICP iterations, {args.copies} copies) from {cal['n']} inputs: rotation "
+    print(f"refined calibration (k={args.refine}, {args.refine_iters} ICP iterations, {args.copies} copies, "
+          f"visibility {args.visibility}) from {cal['n']} inputs: rotation "
           f"inliers {cal['inlier_fraction']:.2f}, translation inliers {cal['translation_inlier_fraction']:.2f} "
           f"→ {args.model} (metadata refine_calibration)")
     return 0

@@ -23,7 +23,8 @@ Keys (all values are strings):
 Optional keys (absent in older files): ``precision`` "fp32" | "int8" (weights of the graph's MatMul/Gemm);
 ``refine_calibration`` JSON {k, iters, copies, rotation 3×3, translation 3, ...}: the calibration for the SDK's ICP
 re-scoring of the k best hypotheses with ``copies`` rotated input copies per object (absent: 1; ``equipose calibrate
---model M --refine K --copies C``); ``handle`` JSON {"direction": 3}:
+--model M --refine K --copies C``) and, for partial-view models, ``visibility`` (absent/null: off; the exponent of the
+view-aware re-scoring, ``equipose.runtime.visibility``, ``--visibility E``); ``handle`` JSON {"direction": 3}:
 the unit handle direction in the category frame, for categories whose pose includes a handle (``mug``: +x); the SDK
 then reports whether the handle was seen (``PoseResult.handle_visible``); ``shape_prior`` "cylinder": the SDK takes the
 symmetry axis from the observed normals (cans and tins, ``equipose.runtime.cylinder``); ``flip_templates`` JSON
@@ -199,9 +200,12 @@ def decode_metadata(props: dict, source: str = "model") -> dict:
         out["refine_calibration"] = None if not rc else {
             "k": int(rc["k"]), "iters": int(rc["iters"]), "copies": int(rc.get("copies", 1)),
             "rotation": np.asarray(rc["rotation"], dtype=np.float64).reshape(3, 3),
-            "translation": np.asarray(rc["translation"], dtype=np.float64).reshape(3)}
+            "translation": np.asarray(rc["translation"], dtype=np.float64).reshape(3),
+            "visibility": None if rc.get("visibility") is None else float(rc["visibility"])}
         if rc and not 1 <= out["refine_calibration"]["copies"] <= MAX_COPIES:
             raise ValueError(f"copies must be in 1..{MAX_COPIES}, got {out['refine_calibration']['copies']}")
+        if rc and rc.get("visibility") is not None and not -3 <= float(rc["visibility"]) <= 6:
+            raise ValueError(f"visibility must be an exponent in -3..6, got {rc['visibility']}")
     except (ValueError, KeyError, TypeError) as e:
         raise MetadataError(f"{source}: malformed refine_calibration metadata ({e}); re-run 'equipose calibrate "
                             "--model'") from None

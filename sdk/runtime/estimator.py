@@ -54,6 +54,10 @@ class PoseEstimator:
             copies of each object in one batch; the pose starts from their consensus and is refined against their
             mean canonical shape (1 = off). "auto" (default): what the file was calibrated for (metadata
             ``refine_calibration``, ``equipose calibrate --model M --copies K``) when its re-scoring is used, else 1.
+        visibility: partial-view models with re-scoring: rank the refined hypotheses by the view-aware residual
+            (``equipose.runtime.visibility``; the exponent of its hidden point removal, None = the one-way ICP
+            residual). "auto" (default): the file's (metadata ``refine_calibration``, ``equipose calibrate --model M
+            --visibility E``), else None.
         model_points: instance-level mode (``equipose.runtime.instance``): [M, 3] metres of the object's own model
             (CAD frame); results are that model's pose (camera ← CAD), found by ICP of the ``instance_k`` best
             hypotheses (``instance_iters`` iterations) against the model points instead of the predicted shape.
@@ -68,6 +72,7 @@ class PoseEstimator:
 
     def __init__(self, model_path, threads: int | None = None, *, crop_options: dict | None = None, top_k: int = 5,
                  refine: int | str = "auto", refine_iters: int | None = None, copies: int | str = "auto",
+                 visibility: float | str | None = "auto",
                  adaptive_threads: bool = True, model_points=None, instance_k: int = 10, instance_iters: int = 20):
         path = resolve_model_file(model_path)
         if threads is not None and (not isinstance(threads, int) or threads < 0):
@@ -103,6 +108,16 @@ class PoseEstimator:
         if copies == "auto":
             copies = rcal["copies"] if (refine and rcal and model_points is None) else 1
         self.copy_rotations = copy_rotations(copies)                            # [K, 3, 3], copy 0 the identity
+        if visibility == "auto":
+            visibility = rcal.get("visibility") if (refine and rcal and self.partial) else None
+        if visibility is not None and (isinstance(visibility, (bool, str)) or not isinstance(visibility, (int, float))
+                                       or not -3 <= visibility <= 6):
+            raise ConfigError(f"visibility must be 'auto', None or an exponent in -3..6 (view-aware re-scoring, "
+                              f"equipose.runtime.visibility), got {visibility!r}")
+        if visibility is not None and not self.partial:
+            raise ConfigError(f"visibility (view-aware re-scoring) applies to partial-view models; {path.name} is a "
+                              "complete-shape model: leave visibility='auto' or None")
+        self.visibility = None if visibility is None else float(visibility)
         self.copies = int(copies)
         if self.copies > 1 and model_points is not None:
             raise ConfigError("rotated input copies (copies > 1) do not apply in instance-level mode (model_points): "

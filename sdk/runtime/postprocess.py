@@ -22,6 +22,7 @@ from equipose.runtime.rest_facet import rest_facet_up
 from equipose.runtime.result import PoseResult
 from equipose.runtime.stages import apply_stages
 from equipose.runtime.upright import select_upright
+from equipose.runtime.visibility import view_rescore
 
 __all__ = ["finish_category"]
 
@@ -64,6 +65,9 @@ def finish_category(est, outputs: dict, b: int, prep, *, prefer=None, prefer_mar
         others = np.delete(s_all, j)
         R_all[j], t_all[j] = R_c, t_c
         s_all[j] = s_c if not len(others) or s_c < others.min() else np.nextafter(others.min(), -np.inf)
+    if rescore and est.partial and est.visibility is not None:                  # view-aware re-scoring
+        s_all = view_rescore(prep, canon, R_all, t_all, s_all, k=est.refine + (K > 1), symmetry=est.symmetry,
+                             exponent=est.visibility)
     dR, dt = est.calibration_rotation, est.calibration_translation
     R_cat, t_cat = apply_calibration(R_all, t_all, dR, dt)                      # [60, 3, 3], [60, 3]
     canon_cat = canon @ dR.T + dt                                               # [M, 3] category frame, model units

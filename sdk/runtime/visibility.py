@@ -1,0 +1,121 @@
+"""What the camera would see of a posed canonical shape, and the view-aware residual that uses it.
+
+A partial view is scored one way in ICP re-scoring (observed points → template): a pose that hides the object's
+distinctive side behind the visible one fits as well as the right pose whenever the observed side fits somewhere on
+the template (a sofa seen from the front fits its back turned 180°). The view-aware residual adds the other
+direction for the template points the camera would see at that pose — hidden point removal (Katz, Tal and Basri,
+SIGGRAPH 2007: spherical flip about the viewpoint, then the convex hull) on the posed template — so a pose is also
+charged for visible template parts that the view does not contain.
+
+Measured (2026-11-24, 500 test views, one copy, the k = 5 ICP-refined hypotheses chosen by this residual instead of
+the one-way ICP residual; errors against the teacher's poses): sofa-partial median 13.99° → 9.16°, flips 0.32 → 0.24;
+chair-partial 5.51° → 5.06°, flips 0.07 → 0.04 (exponent 1). With the SDK's copies: docs/results/models/README.md.
+
+Convention:
+    Model units, the SDK's centred camera frame (``PreparedPoints.model_points``): the camera sits at
+    ``viewpoint = −centre_m / scale``. Poses map the template into the observation, ``x = R y + t`` (column vectors).
+    ``exponent`` sets the flip sphere's radius, ``10**exponent`` × the farthest point's distance: larger keeps more
+    points (≈ 0.64 of a chair template at 2, 0.29 at 1).
+"""
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial import ConvexHull, cKDTree
+from scipy.spatial import QhullError
+
+from equipose.core.errors import InvalidPointsError
+
+__all__ = ["visible_mask", "view_residuals", "view_rescore", "DEFAULT_EXPONENT", "INCUMBENT_MARGIN"]
+
+DEFAULT_EXPONENT = 1.0
+INCUMBENT_MARGIN = 0.2   # chosen on training views (chair-partial: 5° accuracy 0.598 → 0.612 at 0.2, 0.605 at 0)
+
+
+def visible_mask(points: np.ndarray, viewpoint, exponent: float = DEFAULT_EXPONENT) -> np.ndarray:
+    """[P] bool: the points of ``points`` [P, 3] a camera at ``viewpoint`` [3] would see (hidden point removal).
+
+    Points at the viewpoint itself, or a degenerate (flat) set, count as visible (nothing is claimed hidden)."""
+    P = np.asarray(points, np.float64)
+    c = np.asarray(viewpoint, np.float64)
+    if P.ndim != 2 or P.shape[1] != 3 or len(P) < 4 or c.shape != (3,):
+        raise InvalidPointsError(f"visible_mask needs points [P ≥ 4, 3] and a viewpoint [3], got {P.shape}, {c.shape}")
+    if not np.all(np.isfinite(P)) or not np.all(np.isfinite(c)):
+        raise InvalidPointsError("visible_mask: points or viewpoint contain NaN/Inf")
+    d = P - c                                                                   # [P, 3] rays from the camera
+    r = np.linalg.norm(d, axis=1, keepdims=True)                                # [P, 1]
+    if np.any(r[:, 0] <= 0):
+        return np.ones(len(P), bool)
+    radius = float(r.max()) * 10.0 ** float(exponent)
+    flipped = d + 2.0 * (radius - r) * d / r                                    # [P, 3] spherical flip
+    try:
+        hull = ConvexHull(np.vstack([flipped, np.zeros((1, 3))]))
+    except QhullError:                                                          # coplanar / collinear
+        return np.ones(len(P), bool)
+    mask = np.zeros(len(P), bool)
+    mask[hull.vertices[hull.vertices < len(P)]] = True
+    return mask
+
+
+def view_residuals(observed: np.ndarray, template: np.ndarray, rotations: np.ndarray, translations: np.ndarray,
+                   viewpoint, exponent: float = DEFAULT_EXPONENT) -> np.ndarray:
+    """[J] view-aware residual of each pose: mean squared distance observed → posed template plus mean squared
+    distance of the posed template's visible points → observed (model units²).
+
+    ``observed`` [N, 3], ``template`` [M, 3] (learned frame), ``rotations`` [J, 3, 3], ``translations`` [J, 3],
+    ``viewpoint`` [3] (the camera, same frame as ``observed``)."""
+    x = np.asarray(observed, np.float64)
+    Y = np.asarray(template, np.float64)
+    R = np.asarray(rotations, np.float64)
+    t = np.asarray(translations, np.float64)
+    if x.ndim != 2 or x.shape[1] != 3 or len(x) < 3 or Y.ndim != 2 or Y.shape[1] != 3 or len(Y) < 4 \
+            or R.ndim != 3 or R.shape[1:] != (3, 3) or t.shape != (len(R), 3):
+        raise InvalidPointsError(f"view_residuals needs observed [N, 3], template [M ≥ 4, 3], rotations [J, 3, 3] and "
+                                 f"translations [J, 3], got {x.shape}, {Y.shape}, {R.shape}, {t.shape}")
+    obs_tree = cKDTree(x)
+    out = np.empty(len(R))
+    for j in range(len(R)):
+        posed = Y @ R[j].T + t[j]                                               # [M, 3] = R y + t
+        d_obs, _ = cKDTree(posed).query(x)                                      # [N] observed → template
+        seen = posed[visible_mask(posed, viewpoint, exponent)]                  # [V, 3]
+        d_seen, _ = obs_tree.query(seen)                                        # [V] visible template → observed
+        out[j] = float(np.mean(d_obs ** 2) + np.mean(d_seen ** 2))
+    return out
+
+
+def view_rescore(prep, template: np.ndarray, rotations: np.ndarray, translations: np.ndarray, scores: np.ndarray, *,
+                 k: int, symmetry: str = "none", exponent: float = DEFAULT_EXPONENT, merge_deg: float = 15.0,
+                 margin: float = INCUMBENT_MARGIN) -> np.ndarray:
+    """New scores [A] after view-aware re-scoring of the ``k`` best (ICP-refined) hypotheses of one object.
+
+    ``prep``: its ``PreparedPoints`` (observed ``model_points``; the camera at ``−centre_m / scale``); ``template``
+    [M, 3] learned frame; ``rotations`` [A, 3, 3], ``translations`` [A, 3], ``scores`` [A] (lower better), all in the
+    learned frame and model units. A hypothesis within ``merge_deg`` (modulo ``symmetry``) of a better-ranked one
+    stays right behind it (the best of a group, e.g. the copies' consensus, keeps its place; only distinct poses
+    compete); the groups' heads are ranked by ``view_residuals``, the first head's (the best of the old ranking)
+    scaled by ``1 − margin``, so another pose replaces it only with a residual lower by more than that fraction; the
+    other hypotheses rank behind them all in their old order.
+    """
+    from equipose.runtime.hypotheses import symmetric_distance_deg
+    R = np.asarray(rotations, np.float64)
+    t = np.asarray(translations, np.float64)
+    s = np.asarray(scores, np.float64)
+    order = np.argsort(s, kind="stable")[: max(1, int(k))]                     # [k] best first
+    heads, member = [], {}
+    for i in order:
+        near = [h for h in heads if symmetric_distance_deg(R[h], R[i][None], symmetry)[0] <= merge_deg]
+        if near:
+            member[int(i)] = near[0]
+        else:
+            heads.append(int(i))
+    viewpoint = -np.asarray(prep.centre_m, np.float64) / float(prep.scale)
+    v = view_residuals(prep.model_points, template, R[heads], t[heads], viewpoint, exponent)   # [H]
+    v[0] *= 1.0 - float(margin)                                                 # the incumbent's benefit of doubt
+    out = np.empty_like(s)
+    out[heads] = v
+    for i, h in member.items():                                                 # right behind its group's head
+        out[i] = np.nextafter(out[h], np.inf)
+    top = max(out[heads].max(), max((out[i] for i in member), default=-np.inf))
+    rest = np.setdiff1d(np.arange(len(s)), order)
+    if len(rest):
+        out[rest] = top + 1e-9 + (s[rest] - s[rest].min())
+    return out
