@@ -22,7 +22,7 @@ from equipose.runtime.rest_facet import rest_facet_up
 from equipose.runtime.result import PoseResult
 from equipose.runtime.stages import apply_stages
 from equipose.runtime.upright import select_upright
-from equipose.runtime.visibility import view_rescore
+from equipose.runtime.visibility import VIEW_AMBIGUOUS_MARGIN, view_rescore
 
 __all__ = ["finish_category"]
 
@@ -65,7 +65,8 @@ def finish_category(est, outputs: dict, b: int, prep, *, prefer=None, prefer_mar
         others = np.delete(s_all, j)
         R_all[j], t_all[j] = R_c, t_c
         s_all[j] = s_c if not len(others) or s_c < others.min() else np.nextafter(others.min(), -np.inf)
-    if rescore and est.partial and est.visibility is not None:                  # view-aware re-scoring
+    viewed = rescore and est.partial and est.visibility is not None
+    if viewed:                                                                  # view-aware re-scoring
         s_all = view_rescore(prep, canon, R_all, t_all, s_all, k=est.refine + (K > 1), symmetry=est.symmetry,
                              exponent=est.visibility)
     dR, dt = est.calibration_rotation, est.calibration_translation
@@ -74,7 +75,8 @@ def finish_category(est, outputs: dict, b: int, prep, *, prefer=None, prefer_mar
     up_source = None if up is None else "given"
     if up is None:
         sel = select_hypothesis(R_cat, t_cat, s_all, symmetry=est.symmetry, top_k=est.top_k, prefer=prefer,
-                                prefer_margin=prefer_margin)
+                                prefer_margin=prefer_margin,
+                                **({"ambiguous_margin": VIEW_AMBIGUOUS_MARGIN} if viewed else {}))
         R, t_model = nearest_rotation(R_cat[sel.index]), t_cat[sel.index]
         rest = est.metadata.get("rest_facet")
         if rest is not None:
