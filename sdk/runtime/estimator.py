@@ -23,6 +23,7 @@ from equipose.runtime.instance import build_instance_model, finish_instance
 from equipose.runtime.postprocess import finish_category
 from equipose.runtime.result import FrameError, PoseResult
 from equipose.runtime.upright import check_up, per_object_up, resolve_plane_up
+from equipose.runtime.visibility import resolve_visibility
 from equipose.models import resolve_model_file
 from equipose.runtime.session import INPUT_NAME, OUTPUT_NAMES, check_io, open_session, run_in_chunks
 
@@ -54,10 +55,8 @@ class PoseEstimator:
             copies of each object in one batch; the pose starts from their consensus and is refined against their
             mean canonical shape (1 = off). "auto" (default): what the file was calibrated for (metadata
             ``refine_calibration``, ``equipose calibrate --model M --copies K``) when its re-scoring is used, else 1.
-        visibility: partial-view models with re-scoring: rank the refined hypotheses by the view-aware residual
-            (``equipose.runtime.visibility``; the exponent of its hidden point removal, None = the one-way ICP
-            residual). "auto" (default): the file's (metadata ``refine_calibration``, ``equipose calibrate --model M
-            --visibility E``), else None.
+        visibility: exponent of the view-aware re-scoring of partial views (``equipose.runtime.visibility``; None =
+            off). "auto" (default): the file's (``equipose calibrate --model M --visibility E``) when re-scoring runs.
         model_points: instance-level mode (``equipose.runtime.instance``): [M, 3] metres of the object's own model
             (CAD frame); results are that model's pose (camera ← CAD), found by ICP of the ``instance_k`` best
             hypotheses (``instance_iters`` iterations) against the model points instead of the predicted shape.
@@ -94,10 +93,8 @@ class PoseEstimator:
         self.calibration_rotation = np.asarray(self.metadata["calibration_rotation"], np.float64)     # [3, 3]
         self.calibration_translation = np.asarray(self.metadata["calibration_translation"], np.float64)  # [3]
         rcal = self.metadata["refine_calibration"]                              # None, or parsed and checked
-        if refine == "auto":
-            refine = rcal["k"] if rcal else 0
-        if refine_iters is None:
-            refine_iters = rcal["iters"] if rcal else 10
+        refine = (rcal["k"] if rcal else 0) if refine == "auto" else refine
+        refine_iters = (rcal["iters"] if rcal else 10) if refine_iters is None else refine_iters
         if isinstance(refine, bool) or not isinstance(refine, int) or refine < 0 or not isinstance(refine_iters, int) \
                 or refine_iters < 1:
             raise ConfigError(f"refine must be 'auto' or an int ≥ 0 and refine_iters an int ≥ 1, got {refine!r}, "
@@ -105,19 +102,9 @@ class PoseEstimator:
         self.refine, self.refine_iters = refine, refine_iters
         if refine and rcal:                                                     # calibrated for refined poses
             self.calibration_rotation, self.calibration_translation = rcal["rotation"], rcal["translation"]
-        if copies == "auto":
-            copies = rcal["copies"] if (refine and rcal and model_points is None) else 1
+        copies = (rcal["copies"] if (refine and rcal and model_points is None) else 1) if copies == "auto" else copies
         self.copy_rotations = copy_rotations(copies)                            # [K, 3, 3], copy 0 the identity
-        if visibility == "auto":
-            visibility = rcal.get("visibility") if (refine and rcal and self.partial) else None
-        if visibility is not None and (isinstance(visibility, (bool, str)) or not isinstance(visibility, (int, float))
-                                       or not -3 <= visibility <= 6):
-            raise ConfigError(f"visibility must be 'auto', None or an exponent in -3..6 (view-aware re-scoring, "
-                              f"equipose.runtime.visibility), got {visibility!r}")
-        if visibility is not None and not self.partial:
-            raise ConfigError(f"visibility (view-aware re-scoring) applies to partial-view models; {path.name} is a "
-                              "complete-shape model: leave visibility='auto' or None")
-        self.visibility = None if visibility is None else float(visibility)
+        self.visibility = resolve_visibility(visibility, rcal if refine else None, self.partial, path.name)
         self.copies = int(copies)
         if self.copies > 1 and model_points is not None:
             raise ConfigError("rotated input copies (copies > 1) do not apply in instance-level mode (model_points): "
