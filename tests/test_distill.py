@@ -166,7 +166,24 @@ def test_cli_distills_a_partial_model(tmp_path, data_root, capsys):
                  str(teacher_run / "latest.pt")]) == 2
     assert "use it with --mode partial" in capsys.readouterr().err
     assert main(["train", *common, "--mode", "partial", "--out", str(run), "--teacher",
-                 str(teacher_run / "latest.pt"), "--select-weight", "0.1"]) == 0
+                 str(teacher_run / "latest.pt"), "--select-weight", "0.1", "--rotate-augment"]) == 0
     ck = load_checkpoint(run / "latest.pt")
     assert ck["partial"] and ck["step"] == 2 and ck["training"]["config"]["teacher"].endswith("latest.pt")
+    assert ck["training"]["config"]["rotate_augment"] is True
     assert (run / "teacher.npz").is_file()
+
+
+def test_rotate_views_turns_views_and_targets_alike():
+    """Every target shape posed by the turned pose lies exactly on the turned view; the centroid stays put."""
+    from equipose.train.trainer import rotate_views
+    y = torch.randn(4, 50, 3, dtype=torch.float64)                              # canonical shapes
+    R = torch.as_tensor(Rotation.random(4, random_state=1).as_matrix())
+    t = torch.randn(4, 3, dtype=torch.float64) + torch.tensor([0.0, 0.0, 5.0])
+    x = torch.einsum("bij,bnj->bni", R, y) + t[:, None]                          # views of the shapes
+    p, R2, t2 = rotate_views(x, R, t, np.random.default_rng(0))
+    torch.testing.assert_close(torch.einsum("bij,bnj->bni", R2, y) + t2[:, None], p)
+    torch.testing.assert_close(p.mean(1), x.mean(1))
+    turn = torch.einsum("bji,bjk->bik", R, R2)                                   # Rᵀ R' (the same Q per view)
+    assert float(torch.linalg.matrix_norm(turn - torch.eye(3, dtype=turn.dtype)).min()) > 1e-3
+    with pytest.raises(ConfigError, match="rotate_views"):
+        rotate_views(x[0], R, t, np.random.default_rng(0))

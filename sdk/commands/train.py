@@ -49,6 +49,9 @@ def add_arguments(p) -> None:
     p.add_argument("--select-weight", dest="select_weight", type=float,
                    help="distillation: weight of the cross-entropy that makes the student's own score pick the best "
                    "hypothesis (default 0)")
+    p.add_argument("--rotate-augment", dest="rotate_augment", action="store_true", default=None,
+                   help="distillation: turn each training view about its centroid by a uniform random rotation (its "
+                   "teacher pose with it), beyond the 60 rotations the network is exactly equivariant to")
     p.add_argument("--symmetry-weight", dest="symmetry_weight", type=float,
                    help="complete mode, rotationally symmetric category: weight of the loss that keeps the predicted "
                    "canonical shape symmetric about its z axis, so that z is every instance's symmetry axis rather "
