@@ -175,7 +175,7 @@ def test_cli_distills_a_partial_model(tmp_path, data_root, capsys):
 
 def test_rotate_views_turns_views_and_targets_alike():
     """Every target shape posed by the turned pose lies exactly on the turned view; the centroid stays put."""
-    from equipose.train.trainer import rotate_views
+    from equipose.train.augment import rotate_views
     y = torch.randn(4, 50, 3, dtype=torch.float64)                              # canonical shapes
     R = torch.as_tensor(Rotation.random(4, random_state=1).as_matrix())
     t = torch.randn(4, 3, dtype=torch.float64) + torch.tensor([0.0, 0.0, 5.0])

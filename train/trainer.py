@@ -24,7 +24,7 @@ import torch
 from tqdm import tqdm
 
 from equipose.core.errors import ConfigError
-
+from equipose.train.augment import rotate_views
 from equipose.train.checkpoint import load_checkpoint, optimizer_to, save_checkpoint
 from equipose.train.data import collate, make_dataset
 from equipose.train.modelnet import MODELNET_SCALE, category_symmetry, default_data_root
@@ -35,7 +35,7 @@ from equipose.train.distill import complete_clouds, teacher_targets
 from equipose.train.losses import axial_symmetry_loss, chamfer_min_of_60_loss, distillation_loss
 from equipose.train.model import EquiPoseNet
 
-__all__ = ["TrainConfig", "train", "rotate_views"]
+__all__ = ["TrainConfig", "train"]
 
 
 @dataclass
@@ -69,11 +69,9 @@ class TrainConfig:
     teacher_priors: str = ""              # teacher's poses through frame priors, e.g. "footprint,mirror:x"
     teacher_flip: str = ""                # and through the flip stage of this model's flip_templates (name / .onnx)
     select_weight: float = 0.0            # distillation: weight of the hypothesis-selection cross-entropy
-    rotate_augment: bool = False          # distillation: turn each view about its centroid by a uniform random
-                                          # rotation, its teacher pose alike (rotate_views)
+    rotate_augment: bool = False          # distillation: views turned by random rotations (augment.rotate_views)
     symmetry_weight: float = 0.0          # complete, symmetric category: weight of model.axial_symmetry_loss
-    minutes: float = 0.0                  # > 0: stop once the training steps (validation excluded) took this many
-                                          # minutes, validating and saving there (equal-budget comparisons)
+    minutes: float = 0.0                  # > 0: stop (validate, save) once training steps took this many minutes
 
     @classmethod
     def from_sources(cls, config_file=None, **overrides) -> "TrainConfig":
@@ -98,28 +96,6 @@ class TrainConfig:
         if cfg.batch_size < 1 or cfg.steps < 0:
             raise ConfigError("batch_size must be ≥ 1 and steps ≥ 0")
         return cfg
-
-
-def rotate_views(points: torch.Tensor, rotations: torch.Tensor, translations: torch.Tensor,
-                 rng: np.random.Generator) -> tuple:
-    """Turn each view about its centroid by its own uniform random rotation Q, and its target pose with it.
-
-    Convention: ``points`` [B, N, 3] model units (camera frame), target poses ``x = R y + t`` with ``rotations``
-    [B, 3, 3] and ``translations`` [B, 3]. With centroid c: x' = Q (x − c) + c, R' = Q R, t' = Q (t − c) + c, so
-    every posed target shape lands on the turned view exactly. Returns (points', rotations', translations').
-    """
-    if points.ndim != 3 or points.shape[-1] != 3 or rotations.shape != (len(points), 3, 3) \
-            or translations.shape != (len(points), 3):
-        raise ConfigError(f"rotate_views needs points [B, N, 3], rotations [B, 3, 3], translations [B, 3]; got "
-                          f"{tuple(points.shape)}, {tuple(rotations.shape)}, {tuple(translations.shape)}")
-    from scipy.spatial.transform import Rotation
-    Q = torch.as_tensor(Rotation.random(len(points), random_state=rng).as_matrix(), dtype=points.dtype,
-                        device=points.device)                                  # [B, 3, 3]
-    c = points.mean(1, keepdim=True)                                           # [B, 1, 3] centroid
-    p = torch.einsum("bij,bnj->bni", Q, points - c) + c                        # [B, N, 3]
-    R = torch.einsum("bij,bjk->bik", Q, rotations)                             # [B, 3, 3]
-    t = torch.einsum("bij,bj->bi", Q, translations - c[:, 0]) + c[:, 0]        # [B, 3]
-    return p, R, t
 
 
 def _dist_info() -> tuple:
@@ -288,11 +264,9 @@ def train(cfg: TrainConfig, resume: bool = False, log=print) -> pathlib.Path:
         else:
             v = torch.from_numpy(idx).to(device)
             R_t, t_t = targets["rotations"][v], targets["translations"][v]            # [B, 3, 3], [B, 3]
-            if cfg.rotate_augment:
-                x, R_t, t_t = rotate_views(x, R_t, t_t, rng)
-            loss, _ = distillation_loss(net(x, return_aux=True), targets["shapes"][targets["instance"][v]],
-                                        R_t, t_t, model.anchors,
-                                        symmetric=symmetry != "none", select_weight=cfg.select_weight)
+            x, R_t, t_t = rotate_views(x, R_t, t_t, rng) if cfg.rotate_augment else (x, R_t, t_t)
+            loss, _ = distillation_loss(net(x, return_aux=True), targets["shapes"][targets["instance"][v]], R_t, t_t,
+                                        model.anchors, symmetric=symmetry != "none", select_weight=cfg.select_weight)
         opt.zero_grad(set_to_none=True)
         loss.backward()
         opt.step()

@@ -68,7 +68,7 @@ def finish_category(est, outputs: dict, b: int, prep, *, prefer=None, prefer_mar
     viewed = rescore and est.partial and est.visibility is not None
     if viewed:                                                                  # view-aware re-scoring
         s_all = view_rescore(prep, canon, R_all, t_all, s_all, k=est.refine + (K > 1), symmetry=est.symmetry,
-                             exponent=est.visibility)
+                             exponent=est.visibility, copy_poses=Rk[np.arange(K), first] if K > 1 else None)
     dR, dt = est.calibration_rotation, est.calibration_translation
     R_cat, t_cat = apply_calibration(R_all, t_all, dR, dt)                      # [60, 3, 3], [60, 3]
     canon_cat = canon @ dR.T + dt                                               # [M, 3] category frame, model units

@@ -9,7 +9,8 @@ charged for visible template parts that the view does not contain.
 
 Measured (2026-11-24, 500 test views, one copy, the k = 5 ICP-refined hypotheses chosen by this residual instead of
 the one-way ICP residual; errors against the teacher's poses): sofa-partial median 13.99° → 9.16°, flips 0.32 → 0.24;
-chair-partial 5.51° → 5.06°, flips 0.07 → 0.04 (exponent 1). With the SDK's copies: docs/results/models/README.md.
+chair-partial 5.51° → 5.06°, flips 0.07 → 0.04 (exponent 1). With the SDK's copies, whose vote also weighs in
+(``COPY_SUPPORT_WEIGHT``): docs/results/models/README.md (v0.14).
 
 Convention:
     Model units, the SDK's centred camera frame (``PreparedPoints.model_points``): the camera sits at
@@ -25,12 +26,17 @@ from scipy.spatial import QhullError
 
 from equipose.core.errors import ConfigError, InvalidPointsError
 
-__all__ = ["visible_mask", "view_residuals", "view_rescore", "resolve_visibility", "DEFAULT_EXPONENT", "INCUMBENT_MARGIN", "VIEW_AMBIGUOUS_MARGIN"]
+__all__ = ["visible_mask", "view_residuals", "view_rescore", "resolve_visibility", "DEFAULT_EXPONENT", "INCUMBENT_MARGIN", "VIEW_AMBIGUOUS_MARGIN",
+           "COPY_SUPPORT_WEIGHT"]
 
 DEFAULT_EXPONENT = 1.0
 INCUMBENT_MARGIN = 0.2   # chosen on training views (chair-partial: 5° accuracy 0.598 → 0.612 at 0.2, 0.605 at 0)
-VIEW_AMBIGUOUS_MARGIN = 0.3   # ``ambiguous`` below this flip margin of view-aware scores (they separate poses more
-                              # than the one-way residual's 0.1; chosen on training views like the above)
+VIEW_AMBIGUOUS_MARGIN = 0.5   # ``ambiguous`` below this flip margin of view-aware scores (they separate poses more
+                              # than the one-way residual's 0.1, the copies' vote more again; chosen on 600 training
+                              # views: sofa-partial flags 0.28 of results holding 0.57 of its flips, chair 0.07 / 0.73)
+COPY_SUPPORT_WEIGHT = 0.8     # rotated copies: a pose's residual × (1 − this × the share of copies whose best
+                              # hypothesis lies within ``merge_deg`` of it) (training views: sofa-partial flips
+                              # 0.203 → 0.176, chair-partial 0.040 → 0.039)
 
 
 def visible_mask(points: np.ndarray, viewpoint, exponent: float = DEFAULT_EXPONENT) -> np.ndarray:
@@ -86,7 +92,8 @@ def view_residuals(observed: np.ndarray, template: np.ndarray, rotations: np.nda
 
 def view_rescore(prep, template: np.ndarray, rotations: np.ndarray, translations: np.ndarray, scores: np.ndarray, *,
                  k: int, symmetry: str = "none", exponent: float = DEFAULT_EXPONENT, merge_deg: float = 15.0,
-                 margin: float = INCUMBENT_MARGIN) -> np.ndarray:
+                 margin: float = INCUMBENT_MARGIN, copy_poses=None, support_weight: float = COPY_SUPPORT_WEIGHT
+                 ) -> np.ndarray:
     """New scores [A] after view-aware re-scoring of the ``k`` best (ICP-refined) hypotheses of one object.
 
     ``prep``: its ``PreparedPoints`` (observed ``model_points``; the camera at ``−centre_m / scale``); ``template``
@@ -95,7 +102,9 @@ def view_rescore(prep, template: np.ndarray, rotations: np.ndarray, translations
     stays right behind it (the best of a group, e.g. the copies' consensus, keeps its place; only distinct poses
     compete); the groups' heads are ranked by ``view_residuals``, the first head's (the best of the old ranking)
     scaled by ``1 − margin``, so another pose replaces it only with a residual lower by more than that fraction; the
-    other hypotheses rank behind them all in their old order.
+    other hypotheses rank behind them all in their old order. ``copy_poses`` [K, 3, 3] (the rotated copies' best
+    rotations, same frame): each head's residual is also scaled by ``1 − support_weight × support``, support = the
+    share of copies within ``merge_deg`` of it, so a pose most copies found needs a clearer residual to be replaced.
     """
     from equipose.runtime.hypotheses import symmetric_distance_deg
     R = np.asarray(rotations, np.float64)
@@ -112,6 +121,12 @@ def view_rescore(prep, template: np.ndarray, rotations: np.ndarray, translations
     viewpoint = -np.asarray(prep.centre_m, np.float64) / float(prep.scale)
     v = view_residuals(prep.model_points, template, R[heads], t[heads], viewpoint, exponent)   # [H]
     v[0] *= 1.0 - float(margin)                                                 # the incumbent's benefit of doubt
+    if copy_poses is not None:                                                  # the copies' vote
+        C = np.asarray(copy_poses, np.float64)                                  # [K, 3, 3]
+        if C.ndim != 3 or C.shape[1:] != (3, 3) or not len(C):
+            raise InvalidPointsError(f"view_rescore: copy_poses must be [K ≥ 1, 3, 3], got {C.shape}")
+        support = np.array([np.mean(symmetric_distance_deg(R[h], C, symmetry) <= merge_deg) for h in heads])  # [H]
+        v *= 1.0 - float(support_weight) * support
     out = np.empty_like(s)
     out[heads] = v
     for i, h in member.items():                                                 # right behind its group's head

@@ -71,6 +71,15 @@ def test_view_rescore_ranks_distinct_poses_and_keeps_groups_together():
     assert np.argmin(kept) == 0                                              # a right incumbent stays first
     close = view_rescore(prep, T, Rs[[0, 2]], ts[[0, 2]], np.array([1.0, 2.0]), k=2, margin=1.0)
     assert np.argmin(close) == 0                                             # margin 1: the incumbent always stays
+    votes = np.stack([R[1]] * 7 + [R[0]])                                    # 7 of 8 copies found the wrong pose
+    out = view_rescore(prep, T, Rs[[2, 0]], ts[[2, 0]], np.array([1.0, 2.0]), k=2, copy_poses=votes)
+    assert np.argmin(out) == 0                                               # the view still decides at weight 0.8 …
+    off = types.SimpleNamespace(model_points=prep.model_points + [0.0, 0.0, 0.02], centre_m=centre, scale=1.0)
+    out = view_rescore(off, T, Rs[[2, 0]], ts[[2, 0]], np.array([1.0, 2.0]), k=2, copy_poses=votes[:7],
+                       support_weight=1.0)                                   # (the right pose's residual now > 0)
+    assert np.argmin(out) == 1                                               # … a unanimous vote at weight 1 overrides it
+    with pytest.raises(InvalidPointsError, match="copy_poses"):
+        view_rescore(prep, T, Rs, ts, s, k=2, copy_poses=np.eye(3))
 
 
 def test_estimator_visibility_option(tiny_model):
