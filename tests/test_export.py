@@ -334,6 +334,13 @@ def test_refined_calibration_round_trip(tiny_ckpt, tmp_path, rng):
     assert PoseEstimator(path, threads=1, visibility=None).visibility is None
     with pytest.raises(MetadataError):
         update_metadata(path, refine_calibration={**calv, "visibility": 40.0})
+    assert calv["polish"] == 0 and PoseEstimator(path, threads=1).polish == 0
+    calp = calibrate_onnx_refined(path, canon, k=2, iters=3, polish=5)      # the calibration runs with the polish
+    update_metadata(path, refine_calibration=calp)
+    assert PoseEstimator(path, threads=1).polish == 5 and PoseEstimator(path, threads=1, refine=0).polish == 0
+    assert PoseEstimator(path, threads=1, polish=0).polish == 0
+    with pytest.raises(MetadataError):
+        update_metadata(path, refine_calibration={**calp, "polish": -1})
     update_metadata(path, refine_calibration=cal3)
     before = path.read_bytes()
     with pytest.raises(MetadataError):                                       # validated before writing …

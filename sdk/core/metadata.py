@@ -24,7 +24,8 @@ Optional keys (absent in older files): ``precision`` "fp32" | "int8" (weights of
 ``refine_calibration`` JSON {k, iters, copies, rotation 3×3, translation 3, ...}: the calibration for the SDK's ICP
 re-scoring of the k best hypotheses with ``copies`` rotated input copies per object (absent: 1; ``equipose calibrate
 --model M --refine K --copies C``) and, for partial-view models, ``visibility`` (absent/null: off; the exponent of the
-view-aware re-scoring, ``equipose.runtime.visibility``, ``--visibility E``); ``handle`` JSON {"direction": 3}:
+view-aware re-scoring, ``equipose.runtime.visibility``, ``--visibility E``) and ``polish`` (absent: 0; ICP
+iterations on the selected pose, ``--polish N``); ``handle`` JSON {"direction": 3}:
 the unit handle direction in the category frame, for categories whose pose includes a handle (``mug``: +x); the SDK
 then reports whether the handle was seen (``PoseResult.handle_visible``); ``shape_prior`` "cylinder": the SDK takes the
 symmetry axis from the observed normals (cans and tins, ``equipose.runtime.cylinder``); ``flip_templates`` JSON
@@ -44,11 +45,13 @@ import numpy as np
 from equipose.core import icosahedral
 from equipose.core.errors import MetadataError, ModelVersionError
 
-__all__ = ["FORMAT_VERSION", "REQUIRED_KEYS", "FRAME_PRIOR_STEPS", "MAX_COPIES", "encode_metadata", "decode_metadata"]
+__all__ = ["FORMAT_VERSION", "REQUIRED_KEYS", "FRAME_PRIOR_STEPS", "MAX_COPIES", "MAX_POLISH",
+           "encode_metadata", "decode_metadata"]
 
 FORMAT_VERSION = 1
 FRAME_PRIOR_STEPS = ("rest", "mirror", "footprint")       # equipose.runtime.frame_priors
 MAX_COPIES = 64                                            # refine_calibration copies; equipose.runtime.copies
+MAX_POLISH = 200                                           # refine_calibration polish; equipose.runtime.refine
 REQUIRED_KEYS = ("equipose_format", "equipose_version", "category", "preset", "model_config", "num_points",
                  "num_canonical_points", "scale", "partial", "symmetry", "calibration_rotation",
                  "calibration_translation", "anchors", "random_init", "training", "metrics")
@@ -201,11 +204,14 @@ def decode_metadata(props: dict, source: str = "model") -> dict:
             "k": int(rc["k"]), "iters": int(rc["iters"]), "copies": int(rc.get("copies", 1)),
             "rotation": np.asarray(rc["rotation"], dtype=np.float64).reshape(3, 3),
             "translation": np.asarray(rc["translation"], dtype=np.float64).reshape(3),
-            "visibility": None if rc.get("visibility") is None else float(rc["visibility"])}
+            "visibility": None if rc.get("visibility") is None else float(rc["visibility"]),
+            "polish": int(rc.get("polish", 0))}
         if rc and not 1 <= out["refine_calibration"]["copies"] <= MAX_COPIES:
             raise ValueError(f"copies must be in 1..{MAX_COPIES}, got {out['refine_calibration']['copies']}")
         if rc and rc.get("visibility") is not None and not -3 <= float(rc["visibility"]) <= 6:
             raise ValueError(f"visibility must be an exponent in -3..6, got {rc['visibility']}")
+        if rc and not 0 <= out["refine_calibration"]["polish"] <= MAX_POLISH:
+            raise ValueError(f"polish must be in 0..{MAX_POLISH} ICP iterations, got {out['refine_calibration']['polish']}")
     except (ValueError, KeyError, TypeError) as e:
         raise MetadataError(f"{source}: malformed refine_calibration metadata ({e}); re-run 'equipose calibrate "
                             "--model'") from None

@@ -21,6 +21,7 @@ from equipose.core.presets import ModelConfig, total_macs
 from equipose.runtime.copies import copy_batch, copy_rotations
 from equipose.runtime.instance import build_instance_model, finish_instance
 from equipose.runtime.postprocess import finish_category
+from equipose.runtime.refine import resolve_polish
 from equipose.runtime.result import FrameError, PoseResult
 from equipose.runtime.upright import check_up, per_object_up, resolve_plane_up
 from equipose.runtime.visibility import resolve_visibility
@@ -50,7 +51,8 @@ class PoseEstimator:
         refine: ICP re-scoring (``equipose.runtime.refine``) of the ``refine`` best hypotheses against the predicted
             canonical shape, re-ranked by residual (0 = the network's argmin). "auto" (default): what the file was
             calibrated for (metadata ``refine_calibration``, ``equipose calibrate --model M --refine K``), else 0.
-        refine_iters: ICP iterations per refined hypothesis (default: the file's, else 10).
+        refine_iters, polish: ICP iterations per refined hypothesis (default: the file's, else 10), and on the selected
+            pose after re-scoring (0 = none; "auto": the file's, ``equipose calibrate --model M --polish N``, else 0).
         copies: rotated input copies per object (``equipose.runtime.copies``): the network runs on ``copies`` turned
             copies of each object in one batch; the pose starts from their consensus and is refined against their
             mean canonical shape (1 = off). "auto" (default): what the file was calibrated for (metadata
@@ -71,7 +73,7 @@ class PoseEstimator:
 
     def __init__(self, model_path, threads: int | None = None, *, crop_options: dict | None = None, top_k: int = 5,
                  refine: int | str = "auto", refine_iters: int | None = None, copies: int | str = "auto",
-                 visibility: float | str | None = "auto",
+                 visibility: float | str | None = "auto", polish: int | str = "auto",
                  adaptive_threads: bool = True, model_points=None, instance_k: int = 10, instance_iters: int = 20):
         path = resolve_model_file(model_path)
         if threads is not None and (not isinstance(threads, int) or threads < 0):
@@ -99,7 +101,7 @@ class PoseEstimator:
                 or refine_iters < 1:
             raise ConfigError(f"refine must be 'auto' or an int ≥ 0 and refine_iters an int ≥ 1, got {refine!r}, "
                               f"{refine_iters!r}")
-        self.refine, self.refine_iters = refine, refine_iters
+        self.refine, self.refine_iters, self.polish = refine, refine_iters, resolve_polish(polish, rcal, refine)
         if refine and rcal:                                                     # calibrated for refined poses
             self.calibration_rotation, self.calibration_translation = rcal["rotation"], rcal["translation"]
         copies = (rcal["copies"] if (refine and rcal and model_points is None) else 1) if copies == "auto" else copies
@@ -118,8 +120,7 @@ class PoseEstimator:
         self.static_batch = check_io(self.session, path.name, self.num_points)
         macs = total_macs(ModelConfig.from_dict(self.metadata["model_config"]), partial=self.partial)
         self.single_thread = bool(adaptive_threads) and threads != 1 and macs < LIGHT_MODEL_MACS
-        # opened now, so that the first single-object call does not pay for it (≈ 20 ms)
-        self._single_session = open_session(path, 1) if self.single_thread else None
+        self._single_session = open_session(path, 1) if self.single_thread else None  # ≈ 20 ms off the first call
         self.instance = None if model_points is None else \
             build_instance_model(self, model_points, k=instance_k, iters=instance_iters)
 
@@ -289,10 +290,9 @@ class PoseEstimator:
                      auto_options: dict | None = None, up=None, **crop_options) -> list:
         """Tabletop auto crop (``equipose.preprocess.auto_masks``) then ``predict_batch`` on every mask found."""
         masks = _crop.auto_masks(depth, K, depth_unit=depth_unit, image_size=image_size, **(auto_options or {}))
-        if not masks:
-            return []
-        return self.predict_batch(depth, K, masks=masks, depth_unit=depth_unit, image_size=image_size,
-                                  return_errors=return_errors, up=up, **crop_options)
+        return [] if not masks else self.predict_batch(depth, K, masks=masks, depth_unit=depth_unit,
+                                                       image_size=image_size, return_errors=return_errors, up=up,
+                                                       **crop_options)
 
     def track(self, source, **kwargs):
         """Stream poses over a frame source; see ``equipose.runtime.tracking.track`` for the options. Yields ``TrackRecord``."""

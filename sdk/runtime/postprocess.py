@@ -1,5 +1,5 @@
 """Category-level post-processing of one network run: ICP re-scoring, calibration into the category frame, hypothesis
-selection (or the up prior's, ``equipose.runtime.upright``, with "up" given or read off a complete cloud's resting
+selection (then ``polish`` more ICP iterations on the chosen pose; or the up prior's, ``equipose.runtime.upright``, with "up" given or read off a complete cloud's resting
 face, ``equipose.runtime.rest_facet``), exact SO(3), metres, and the geometric stages.
 
 Convention: ``outputs`` are the 4 ONNX outputs of a batch (``equipose.runtime.session.OUTPUT_NAMES``), ``b`` the item;
@@ -77,6 +77,12 @@ def finish_category(est, outputs: dict, b: int, prep, *, prefer=None, prefer_mar
         sel = select_hypothesis(R_cat, t_cat, s_all, symmetry=est.symmetry, top_k=est.top_k, prefer=prefer,
                                 prefer_margin=prefer_margin,
                                 **({"ambiguous_margin": VIEW_AMBIGUOUS_MARGIN} if viewed else {}))
+        if rescore and est.polish:                                              # more ICP on the chosen pose
+            Rp, tp, _ = icp_multi(prep.model_points if prep.cloud is None else prep.cloud, canon, R_all[sel.index][None],
+                                  t_all[sel.index][None],
+                                  iters=est.polish, bidirectional=not est.partial)
+            Rp, tp = apply_calibration(Rp, tp, dR, dt)                          # [1, 3, 3], [1, 3] category frame
+            R_cat[sel.index], t_cat[sel.index] = Rp[0], tp[0]
         R, t_model = nearest_rotation(R_cat[sel.index]), t_cat[sel.index]
         rest = est.metadata.get("rest_facet")
         if rest is not None:

@@ -95,6 +95,29 @@ def test_estimator_visibility_option(tiny_model):
             PoseEstimator(tiny_model, threads=1, visibility=bad)
 
 
+
+def test_estimator_polish_option(tiny_model):
+    """polish: more ICP iterations on the selected pose; it needs the re-scoring and only moves the pose toward a
+    better fit of the predicted shape."""
+    from equipose import PoseEstimator
+    from equipose.runtime.refine import icp_multi
+    pts = np.random.default_rng(1).normal(scale=0.05, size=(400, 3)) + [0.0, 0.0, 0.8]
+    base = PoseEstimator(tiny_model, threads=1, refine=3)
+    est = PoseEstimator(tiny_model, threads=1, refine=3, polish=20)
+    assert base.polish == 0 and est.polish == 20
+    r0, r1 = base.predict_points(pts), est.predict_points(pts)
+    assert np.allclose(r1.rotation @ r1.rotation.T, np.eye(3), atol=1e-6)
+
+    def residual(r):                                                         # observed points → posed shape, m²
+        return float(icp_multi(pts, r.canonical_shape_object, r.rotation[None], r.translation[None], iters=0)[2][0])
+    assert residual(r1) <= residual(r0) + 1e-12
+    for bad in (-1, 1.5, True, "more"):
+        with pytest.raises(ConfigError, match="polish"):
+            PoseEstimator(tiny_model, threads=1, refine=3, polish=bad)
+    with pytest.raises(ConfigError, match="refine"):
+        PoseEstimator(tiny_model, threads=1, refine=0, polish=5)
+
+
 def test_visibility_is_refused_for_complete_shape_models(tmp_path):
     pytest.importorskip("torch")
     from equipose import PoseEstimator
