@@ -43,6 +43,8 @@ def test_loss_is_zero_when_one_hypothesis_matches_the_teacher():
     # a wrong canonical shape is penalised even when the pose is right
     wrong, parts = distillation_loss(_outputs(R_h, t_h, S * 1.5), S, R_t, t_t, ANCHORS)
     assert parts["shape"] > 1e-3 and parts["pose"] < 1e-6
+    heavy, _ = distillation_loss(_outputs(R_h, t_h, S * 1.5), S, R_t, t_t, ANCHORS, shape_weight=10.0)
+    assert heavy.item() - wrong.item() == pytest.approx(9.0 * parts["shape"], rel=1e-4)   # shape_weight scales it
     goals = reachable_targets(ANCHORS, R_t, 40.0)                                # [B, 60, 3, 3]
     ang = np.degrees(np.arccos(np.clip((np.einsum("aij,baij->ba", ANCHORS.numpy(), goals.numpy()) - 1) / 2, -1, 1)))
     assert ang.max() <= 40.0 + 1e-3                                             # within reach of each anchor

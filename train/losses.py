@@ -78,10 +78,12 @@ def _subset_chamfer(a: torch.Tensor, b: torch.Tensor, stride: int) -> torch.Tens
 def distillation_loss(out: dict, shapes: torch.Tensor, rotations: torch.Tensor, translations: torch.Tensor,
                       anchors: torch.Tensor, symmetric: bool = False, quat_weight: float = 0.1,
                       select_weight: float = 0.0, select_tolerance: float = 1.5, select_deg: float = 10.0,
-                      reach_weight: float = 1.0, reach_deg: float = 40.0, pose_points: int = 64) -> tuple:
+                      reach_weight: float = 1.0, reach_deg: float = 40.0, pose_points: int = 64,
+                      shape_weight: float = 1.0) -> tuple:
     """Student loss against teacher targets; returns (loss, parts dict of floats).
 
-    shape: chamfer(student canonical shape, teacher shape) — pins the student to the teacher's frame.
+    shape: ``shape_weight`` × chamfer(student canonical shape, teacher shape) — pins the student to the teacher's
+    frame, and is the template the SDK's ICP re-scoring fits the view to (its precision caps the pose's).
     pose, on the hypothesis of the anchor nearest to the teacher's rotation (its residual can reach the target: θmax
     ≥ the anchors' covering radius): ``symmetric`` — chamfer(teacher shape posed by it, teacher shape posed by the
     teacher), blind to the spin about the axis, which a partial view of a symmetric shape cannot tell; otherwise
@@ -118,7 +120,7 @@ def distillation_loss(out: dict, shapes: torch.Tensor, rotations: torch.Tensor, 
     loss_pose = per[ar, near].mean()
     loss_reach = per.mean()
     reg = (out["quaternion_norm"] - 1.0).pow(2).mean()
-    loss = loss_shape + loss_pose + reach_weight * loss_reach + quat_weight * reg
+    loss = shape_weight * loss_shape + loss_pose + reach_weight * loss_reach + quat_weight * reg
     parts = {"shape": loss_shape.item(), "pose": loss_pose.item(), "reach": loss_reach.item()}
     if select_weight > 0:
         if symmetric:                                                                 # pose chamfer vs R* itself

@@ -69,6 +69,7 @@ class TrainConfig:
     teacher_priors: str = ""              # teacher's poses through frame priors, e.g. "footprint,mirror:x"
     teacher_flip: str = ""                # and through the flip stage of this model's flip_templates (name / .onnx)
     select_weight: float = 0.0            # distillation: weight of the hypothesis-selection cross-entropy
+    shape_weight: float = 1.0             # distillation: weight of the canonical-shape chamfer to the teacher's shape
     rotate_augment: bool = False          # distillation: views turned by random rotations (augment.rotate_views)
     symmetry_weight: float = 0.0          # complete, symmetric category: weight of model.axial_symmetry_loss
     minutes: float = 0.0                  # > 0: stop (validate, save) once training steps took this many minutes
@@ -99,10 +100,7 @@ class TrainConfig:
 
 
 def _dist_info() -> tuple:
-    world = int(os.environ.get("WORLD_SIZE", "1"))
-    rank = int(os.environ.get("RANK", "0"))
-    local = int(os.environ.get("LOCAL_RANK", "0"))
-    return world, rank, local
+    return tuple(int(os.environ.get(k, d)) for k, d in (("WORLD_SIZE", "1"), ("RANK", "0"), ("LOCAL_RANK", "0")))
 
 
 def _render_opts(cfg: TrainConfig, split: str) -> dict:
@@ -266,7 +264,8 @@ def train(cfg: TrainConfig, resume: bool = False, log=print) -> pathlib.Path:
             R_t, t_t = targets["rotations"][v], targets["translations"][v]            # [B, 3, 3], [B, 3]
             x, R_t, t_t = rotate_views(x, R_t, t_t, rng) if cfg.rotate_augment else (x, R_t, t_t)
             loss, _ = distillation_loss(net(x, return_aux=True), targets["shapes"][targets["instance"][v]], R_t, t_t,
-                                        model.anchors, symmetric=symmetry != "none", select_weight=cfg.select_weight)
+                                        model.anchors, symmetric=symmetry != "none", select_weight=cfg.select_weight,
+                                        shape_weight=cfg.shape_weight)
         opt.zero_grad(set_to_none=True)
         loss.backward()
         opt.step()

@@ -49,6 +49,9 @@ def add_arguments(p) -> None:
     p.add_argument("--select-weight", dest="select_weight", type=float,
                    help="distillation: weight of the cross-entropy that makes the student's own score pick the best "
                    "hypothesis (default 0)")
+    p.add_argument("--shape-weight", dest="shape_weight", type=float,
+                   help="distillation: weight of the chamfer between the student's canonical shape and the teacher's "
+                   "(default 1; the SDK's ICP re-scoring fits the view to that shape)")
     p.add_argument("--rotate-augment", dest="rotate_augment", action="store_true", default=None,
                    help="distillation: turn each training view about its centroid by a uniform random rotation (its "
                    "teacher pose with it), beyond the 60 rotations the network is exactly equivariant to")
