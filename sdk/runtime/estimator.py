@@ -74,7 +74,7 @@ class PoseEstimator:
     def __init__(self, model_path, threads: int | None = None, *, crop_options: dict | None = None, top_k: int = 5,
                  refine: int | str = "auto", refine_iters: int | None = None, copies: int | str = "auto",
                  visibility: float | str | None = "auto", polish: int | str = "auto",
-                 adaptive_threads: bool = True, model_points=None, instance_k: int = 10, instance_iters: int = 20):
+                 adaptive_threads: bool = True, model_points=None, instance_k: int = 10, instance_iters: int = 30):
         path = resolve_model_file(model_path)
         if threads is not None and (not isinstance(threads, int) or threads < 0):
             raise ConfigError(f"threads must be None or a non-negative int, got {threads!r}")

@@ -12,6 +12,8 @@ observation, the network's hypotheses (R_i, t_i) map learned frame → observati
 (observation → model), and the winner is composed back:
 ``R = R_i A``, ``t = s (R_i b + t_i) + c``. An equivariant network gives the same composed seeds whatever the CAD
 frame is, so a category model is a seed generator for any object; ICP on the true geometry gives the precision.
+Iterations: 30 by default (a start stops early once its pairs repeat). With 20, 10 poses of the whole YCB drill
+(1 mm noise, car-partial v0.15 seeds) ended 0.2–2.3° off; with 30 they ended 0.1–0.4° off, the same as with 50.
 """
 from __future__ import annotations
 
@@ -49,7 +51,7 @@ class InstanceModel:
     iters: int
 
 
-def build_instance_model(est, model_points, *, k: int = 10, iters: int = 20) -> InstanceModel:
+def build_instance_model(est, model_points, *, k: int = 10, iters: int = 30) -> InstanceModel:
     """Express ``model_points`` [M, 3] metres (CAD frame) in ``est``'s learned frame (one network run)."""
     if isinstance(k, bool) or not isinstance(k, int) or not 1 <= k <= 60 or isinstance(iters, bool) \
             or not isinstance(iters, int) or iters < 1:
