@@ -19,7 +19,7 @@ from equipose.runtime.hypotheses import parse_symmetry
 from equipose.core.metadata import decode_metadata
 from equipose.core.presets import ModelConfig, total_macs
 from equipose.runtime.copies import copy_batch, copy_rotations
-from equipose.runtime.instance import build_instance_model, finish_instance
+from equipose.runtime.instance import INSTANCE_ITERS, build_instance_model, finish_instance
 from equipose.runtime.postprocess import finish_category
 from equipose.runtime.refine import resolve_polish
 from equipose.runtime.result import FrameError, PoseResult
@@ -73,8 +73,8 @@ class PoseEstimator:
 
     def __init__(self, model_path, threads: int | None = None, *, crop_options: dict | None = None, top_k: int = 5,
                  refine: int | str = "auto", refine_iters: int | None = None, copies: int | str = "auto",
-                 visibility: float | str | None = "auto", polish: int | str = "auto",
-                 adaptive_threads: bool = True, model_points=None, instance_k: int = 10, instance_iters: int = 30):
+                 visibility: float | str | None = "auto", polish: int | str = "auto", adaptive_threads: bool = True,
+                 model_points=None, instance_k: int = 10, instance_iters: int = INSTANCE_ITERS):
         path = resolve_model_file(model_path)
         if threads is not None and (not isinstance(threads, int) or threads < 0):
             raise ConfigError(f"threads must be None or a non-negative int, got {threads!r}")

@@ -29,10 +29,11 @@ from equipose.runtime.hypotheses import select_hypothesis
 from equipose.runtime.refine import refine_hypotheses
 from equipose.runtime.result import PoseResult
 
-__all__ = ["InstanceModel", "build_instance_model", "finish_instance"]
+__all__ = ["InstanceModel", "build_instance_model", "finish_instance", "INSTANCE_ITERS"]
 
 TEMPLATE_POINTS = 1024          # model points kept (FPS) for ICP
 COARSE_ITERS = 3                # ICP steps for every hypothesis before the k best are refined
+INSTANCE_ITERS = 30             # ICP iterations of the k best (default of PoseEstimator(instance_iters=...))
 
 
 @dataclass
@@ -51,7 +52,7 @@ class InstanceModel:
     iters: int
 
 
-def build_instance_model(est, model_points, *, k: int = 10, iters: int = 30) -> InstanceModel:
+def build_instance_model(est, model_points, *, k: int = 10, iters: int = INSTANCE_ITERS) -> InstanceModel:
     """Express ``model_points`` [M, 3] metres (CAD frame) in ``est``'s learned frame (one network run)."""
     if isinstance(k, bool) or not isinstance(k, int) or not 1 <= k <= 60 or isinstance(iters, bool) \
             or not isinstance(iters, int) or iters < 1:

@@ -1,6 +1,7 @@
 """Category-level post-processing of one network run: ICP re-scoring, calibration into the category frame, hypothesis
-selection (then ``polish`` more ICP iterations on the chosen pose; or the up prior's, ``equipose.runtime.upright``, with "up" given or read off a complete cloud's resting
-face, ``equipose.runtime.rest_facet``), exact SO(3), metres, and the geometric stages.
+selection (then ``polish`` more ICP iterations on the chosen pose; or the up prior's, ``equipose.runtime.upright``,
+with "up" given or read off a complete cloud's resting face, ``equipose.runtime.rest_facet``), exact SO(3), metres,
+and the geometric stages.
 
 Convention: ``outputs`` are the 4 ONNX outputs of a batch (``equipose.runtime.session.OUTPUT_NAMES``), ``b`` the item;
 ``prep.model_points`` [N, 3] model units, centred camera frame; ``up`` None or a unit [3] camera-frame direction.
@@ -70,6 +71,7 @@ def finish_category(est, outputs: dict, b: int, prep, *, prefer=None, prefer_mar
         s_all = view_rescore(prep, canon, R_all, t_all, s_all, k=est.refine + (K > 1), symmetry=est.symmetry,
                              exponent=est.visibility, copy_poses=Rk[np.arange(K), first] if K > 1 else None)
     dR, dt = est.calibration_rotation, est.calibration_translation
+    every_point = prep.model_points if prep.cloud is None else prep.cloud      # [P, 3] the whole crop, model units
     R_cat, t_cat = apply_calibration(R_all, t_all, dR, dt)                      # [60, 3, 3], [60, 3]
     canon_cat = canon @ dR.T + dt                                               # [M, 3] category frame, model units
     up_source = None if up is None else "given"
@@ -78,8 +80,7 @@ def finish_category(est, outputs: dict, b: int, prep, *, prefer=None, prefer_mar
                                 prefer_margin=prefer_margin,
                                 **({"ambiguous_margin": VIEW_AMBIGUOUS_MARGIN} if viewed else {}))
         if rescore and est.polish:                                              # more ICP on the chosen pose
-            Rp, tp, _ = icp_multi(prep.model_points if prep.cloud is None else prep.cloud, canon, R_all[sel.index][None],
-                                  t_all[sel.index][None],
+            Rp, tp, _ = icp_multi(every_point, canon, R_all[sel.index][None], t_all[sel.index][None],
                                   iters=est.polish, bidirectional=not est.partial)
             Rp, tp = apply_calibration(Rp, tp, dR, dt)                          # [1, 3, 3], [1, 3] category frame
             R_cat[sel.index], t_cat[sel.index] = Rp[0], tp[0]
@@ -95,7 +96,7 @@ def finish_category(est, outputs: dict, b: int, prep, *, prefer=None, prefer_mar
         R = nearest_rotation(R)
     turned = None
     if est.metadata.get("frame_priors") is not None:                           # mirror plane / footprint
-        R, turned = apply_frame_priors(prep.model_points if prep.cloud is None else prep.cloud, R, est.metadata["frame_priors"],
+        R, turned = apply_frame_priors(every_point, R, est.metadata["frame_priors"],
                                        keep_up=up if up_source == "given" else None)
     t_m = prep.to_metres(t_model)                                               # [3] metres
     canon_obj = canon_cat * est.scale                                           # [M, 3] category frame, metres

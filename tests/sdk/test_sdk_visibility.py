@@ -95,7 +95,6 @@ def test_estimator_visibility_option(tiny_model):
             PoseEstimator(tiny_model, threads=1, visibility=bad)
 
 
-
 def test_estimator_polish_option(tiny_model):
     """polish: more ICP iterations on the selected pose; it needs the re-scoring and only moves the pose toward a
     better fit of the predicted shape."""
