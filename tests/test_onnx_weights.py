@@ -82,6 +82,9 @@ def test_tracked_state_folders_are_complete():
         assert (f / "latest.pt").is_file()
         assert man["name"] == f.name and man["steps"] >= man["history"][0].get("steps_after", 0) > 0
         assert cfg["out"] == f"train/state/{f.name}"
+        if "candidate_for" in man:                                       # a wider student that may replace a model
+            assert (ROOT / "sdk" / "models" / f"{man['candidate_for']}.onnx").is_file()
+            assert cfg["category"] == man["category"] and cfg["preset"] == man["preset"]
         if man["role"] == "student":
             assert (ROOT / cfg["teacher"]).is_file(), f"{f.name}: teacher {cfg['teacher']} missing"
 

@@ -6,8 +6,10 @@ Layout (``train/state/`` in the repository, committed):
     <name>/manifest.json   {"name", "role", "category", "mode", "preset", "steps", "data_version", "command",
                            "teacher", "history": [{"date", "steps_before", "steps_after", "minutes", "val": ...}]}
 
-``<name>`` is the shipped model's name (``sdk/models/<name>.onnx``). A complete-shape model is a *teacher*; a
-partial-view model is a *student* distilled from ``<category>-complete`` in the same folder.
+``<name>`` is the shipped model's name (``sdk/models/<name>.onnx``), or a candidate's whose manifest names the model
+it may replace (``"candidate_for"``: ``chair-partial-qw`` is ``chair-partial`` widened to ``edge-qw`` by
+``python -m equipose.train.widen``). A complete-shape model is a *teacher*; a partial-view model is a *student*
+distilled from ``<category>-complete`` in the same folder.
 
 Commands (``python -m equipose.train.long_runs ...``):
     seed NAME ...            recover the shipped ONNX networks into resumable checkpoints (``train/onnx_weights.py``)
