@@ -33,7 +33,7 @@ __all__ = ["InstanceModel", "build_instance_model", "finish_instance", "INSTANCE
 
 TEMPLATE_POINTS = 1024          # model points kept (FPS) for ICP
 COARSE_ITERS = 3                # ICP steps for every hypothesis before the k best are refined
-INSTANCE_ITERS = 30             # ICP iterations of the k best (default of PoseEstimator(instance_iters=...))
+INSTANCE_ITERS = 50             # ICP iterations of the k best (default of PoseEstimator(instance_iters=...))
 
 
 @dataclass

@@ -24,7 +24,7 @@ def test_instance_mode_recovers_a_known_pose(tiny_model, drill, model):
         t = np.array([rng.uniform(-0.1, 0.1), rng.uniform(-0.1, 0.1), rng.uniform(0.5, 0.9)])
         obs = drill @ R.T + t + rng.normal(scale=0.001, size=drill.shape)      # the whole drill, 1 mm noise
         r = est.predict_points(obs)
-        assert _angle(r.rotation, R) < 1.0 and np.linalg.norm(r.translation - t) < 0.005   # 30 ICP iterations
+        assert _angle(r.rotation, R) < 1.0 and np.linalg.norm(r.translation - t) < 0.005   # 50 ICP iterations
         np.testing.assert_allclose(r.canonical_shape, drill @ r.rotation.T + r.translation)
         assert r.symmetry == "none" and r.symmetry_axis is None
 
