@@ -46,9 +46,10 @@ def _check_compatible(narrow: ModelConfig, wide: ModelConfig) -> None:
     if diff:
         raise ConfigError(f"cannot widen {narrow.name!r} into {wide.name!r}: they differ in {', '.join(diff)}, "
                           "not only in channel widths; choose a preset that only widens the backbone")
-    if len(narrow.channels) != len(wide.channels) or any(w % n or w < n for n, w in zip(narrow.channels, wide.channels)):
-        raise ConfigError(f"cannot widen channels {tuple(narrow.channels)} into {tuple(wide.channels)}: each wide width "
-                          "must be a multiple of the narrow one, layer by layer")
+    pairs = list(zip(narrow.channels, wide.channels))
+    if len(narrow.channels) != len(wide.channels) or any(w % n or w < n for n, w in pairs):
+        raise ConfigError(f"cannot widen channels {tuple(narrow.channels)} into {tuple(wide.channels)}: "
+                          "each wide width must be a multiple of the narrow one, layer by layer")
 
 
 def _source(c_narrow: int, c_wide: int) -> np.ndarray:
@@ -58,25 +59,24 @@ def _source(c_narrow: int, c_wide: int) -> np.ndarray:
 
 def _widen(w: torch.Tensor, *, out_axis: int | None = None, out_src=None, in_axis: int | None = None, in_src=None,
            rng: np.random.Generator) -> torch.Tensor:
-    """Copy output channels along ``out_axis``; copy and split input channels along ``in_axis``."""
+    """Copy output channels along ``out_axis``; copy and split input channels along ``in_axis``.
+    ``*_src`` come from ``_source``: wide channel c' copies c' mod C, so it is copy number c' // C of C."""
     if out_axis is not None:
         w = w.index_select(out_axis, torch.as_tensor(out_src))
     if in_axis is not None:
         w = w.index_select(in_axis, torch.as_tensor(in_src))
-        # one α per (weight of the narrow input, wide position): the copies of input c share it as α / 1 − α
-        narrow_shape = list(w.shape)
-        narrow_shape[in_axis] = 1
-        alpha = rng.uniform(*SPLIT_RANGE, size=narrow_shape)
-        rank = np.zeros(len(in_src), np.int64)
-        count: dict = {}
-        for i, s in enumerate(in_src):
-            rank[i] = count.get(s, 0)
-            count[s] = rank[i] + 1
-        copies = np.bincount(in_src)[in_src]
+        c_narrow = int(in_src.max()) + 1
+        copies = len(in_src) // c_narrow
         view = [1] * w.dim()
         view[in_axis] = len(in_src)
-        rank, copies = rank.reshape(view), copies.reshape(view)
-        share = np.where(copies == 1, 1.0, np.where(copies == 2, np.where(rank == 0, alpha, 1.0 - alpha), 1.0 / copies))
+        first = (np.arange(len(in_src)) < c_narrow).reshape(view)
+        if copies == 2:          # one α per narrow weight: its two copies carry α and 1 − α of it
+            narrow_shape = list(w.shape)
+            narrow_shape[in_axis] = 1
+            alpha = rng.uniform(*SPLIT_RANGE, size=narrow_shape)
+            share = np.where(first, alpha, 1.0 - alpha)
+        else:                    # one copy keeps the weight; more than two share it equally
+            share = np.full(view, 1.0 / copies)
         w = w * torch.tensor(share, dtype=w.dtype)
     return w.contiguous()
 
@@ -85,15 +85,16 @@ def widen_model(model: EquiPoseNet, preset, seed: int = 0) -> EquiPoseNet:
     """A network of ``preset`` (wider backbone) computing the same outputs as ``model``.
 
     Layouts handled (``train/quotient.py``, ``train/layers.py``, ``train/model.py``): inter weight [K·Cin, Cout]
-    (kernel- or class-major), intra weight [Cin, R·Cout] (quotient, class-major) or [R·Cin, Cout] (60 rotations), skip ``nn.Linear`` [Cout, Cin], the heads' first
-    ``nn.Linear`` [H, C]. Raises ``ConfigError`` for presets that differ in more than channel widths.
+    (kernel- or class-major), intra weight [Cin, R·Cout] (quotient, class-major) or [R·Cin, Cout] (60 rotations),
+    skip ``nn.Linear`` [Cout, Cin], the heads' first ``nn.Linear`` [H, C]. Raises ``ConfigError`` for presets that
+    differ in more than channel widths.
     """
     narrow = model.config
     wide_cfg = get_preset(preset)
     _check_compatible(narrow, wide_cfg)
     rng = np.random.default_rng(seed)
     wide = EquiPoseNet(wide_cfg, partial=model.partial)
-    sd = {k: v.clone() for k, v in model.state_dict().items()}
+    sd = model.state_dict()                                           # read only: widened tensors are new
     out = dict(sd)
     c_prev_n, c_prev_w = None, None                                   # input widths of the current block
     for i, (cn, cw) in enumerate(zip(narrow.channels, wide_cfg.channels)):
