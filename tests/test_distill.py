@@ -55,6 +55,26 @@ def test_loss_is_zero_when_one_hypothesis_matches_the_teacher():
     assert pulled.item() > 0.1                                                  # out of reach for far anchors
 
 
+def test_view_term_measures_the_view_against_the_shape_at_the_teacher_pose():
+    g = torch.Generator().manual_seed(3)
+    S = torch.rand(2, 64, 3, generator=g) - 0.5                                   # teacher = student shapes [B, M, 3]
+    R_t = torch.tensor(Rotation.random(2, random_state=4).as_matrix(), dtype=torch.float32)
+    t_t = torch.randn(2, 3, generator=g)
+    R_h = torch.tensor(Rotation.random(2 * 60, random_state=5).as_matrix(), dtype=torch.float32).view(2, 60, 3, 3)
+    t_h = torch.randn(2, 60, 3, generator=g)
+    seen = S[:, :20] @ R_t.transpose(1, 2) + t_t[:, None]                         # [B, 20, 3] part of the posed shape
+    out = _outputs(R_h, t_h, S)
+    base, parts0 = distillation_loss(out, S, R_t, t_t, ANCHORS)
+    on, parts = distillation_loss(out, S, R_t, t_t, ANCHORS, points=seen, view_weight=3.0)
+    assert "view" not in parts0 and parts["view"] < 1e-7 and on.item() == pytest.approx(base.item(), abs=1e-6)
+    off, parts = distillation_loss(out, S, R_t, t_t, ANCHORS, points=seen + 0.2, view_weight=3.0)
+    assert parts["view"] > 1e-3 and off.item() - base.item() == pytest.approx(3.0 * parts["view"], rel=1e-4)
+    turned = distillation_loss(out, S, R_t @ R_t, t_t, ANCHORS, points=seen, view_weight=1.0)[1]["view"]
+    assert turned > 1e-3                                                          # a different teacher pose misfits
+    with pytest.raises(ConfigError, match="input points"):
+        distillation_loss(out, S, R_t, t_t, ANCHORS, view_weight=1.0)
+
+
 def test_pose_term_ignores_rotations_about_a_symmetry_axis():
     z = torch.linspace(-0.5, 0.5, 20)
     ang = torch.linspace(0, 2 * np.pi, 37)[:-1]

@@ -12,6 +12,7 @@ import math
 import numpy as np
 import torch
 
+from equipose.core.errors import ConfigError
 from equipose.train.model import squared_distances
 
 __all__ = ["chamfer_min_of_60_loss", "axial_symmetry_loss", "reachable_targets", "distillation_loss"]
@@ -79,7 +80,8 @@ def distillation_loss(out: dict, shapes: torch.Tensor, rotations: torch.Tensor, 
                       anchors: torch.Tensor, symmetric: bool = False, quat_weight: float = 0.1,
                       select_weight: float = 0.0, select_tolerance: float = 1.5, select_deg: float = 10.0,
                       reach_weight: float = 1.0, reach_deg: float = 40.0, pose_points: int = 64,
-                      shape_weight: float = 1.0) -> tuple:
+                      shape_weight: float = 1.0, points: torch.Tensor | None = None,
+                      view_weight: float = 0.0) -> tuple:
     """Student loss against teacher targets; returns (loss, parts dict of floats).
 
     shape: ``shape_weight`` × chamfer(student canonical shape, teacher shape) — pins the student to the teacher's
@@ -95,6 +97,11 @@ def distillation_loss(out: dict, shapes: torch.Tensor, rotations: torch.Tensor, 
     object (a roll-flipped airplane) that the partial-view chamfer score could not tell from the right pose, and each
     target is reachable without stretching the residual quaternion (an unclamped pull fought its norm penalty:
     near-anchor error stuck at 13°).
+    view (optional, ``view_weight`` > 0, needs ``points`` [B, N, 3], the student's input in the camera frame): the
+    observed points carried into the teacher's canonical frame by the teacher pose, Rᵀ(x − t), and their mean
+    squared distance to the student's canonical shape (one direction: the view covers part of the shape). It asks
+    the predicted shape to be right where the camera sees the object, which is all the SDK's ICP re-scoring fits
+    against, so that the teacher pose is where that fit settles.
     select (optional): cross-entropy making the student's own partial-view chamfer score pick a right hypothesis —
     uniform target over the nearest anchor's and those within ``select_deg`` of R* (symmetric: pose chamfer within
     ``select_tolerance`` × the nearest anchor's). ``out`` from ``forward(..., return_aux=True)``; shapes [B, M, 3],
@@ -122,6 +129,13 @@ def distillation_loss(out: dict, shapes: torch.Tensor, rotations: torch.Tensor, 
     reg = (out["quaternion_norm"] - 1.0).pow(2).mean()
     loss = shape_weight * loss_shape + loss_pose + reach_weight * loss_reach + quat_weight * reg
     parts = {"shape": loss_shape.item(), "pose": loss_pose.item(), "reach": loss_reach.item()}
+    if view_weight > 0:
+        if points is None:
+            raise ConfigError("distillation_loss: view_weight > 0 needs the input points (points=[B, N, 3])")
+        seen = torch.einsum("bnj,bjk->bnk", points - translations[:, None], rotations)  # [B, N, 3] Rᵀ(x − t)
+        loss_view = squared_distances(seen, out["canonical_shape"]).min(dim=-1).values.mean()
+        loss = loss + view_weight * loss_view
+        parts["view"] = loss_view.item()
     if select_weight > 0:
         if symmetric:                                                                 # pose chamfer vs R* itself
             with torch.no_grad():

@@ -70,6 +70,7 @@ class TrainConfig:
     teacher_flip: str = ""                # and through the flip stage of this model's flip_templates (name / .onnx)
     select_weight: float = 0.0            # distillation: weight of the hypothesis-selection cross-entropy
     shape_weight: float = 1.0             # distillation: weight of the canonical-shape chamfer to the teacher's shape
+    view_weight: float = 0.0              # distillation: weight of the view's fit to that shape at the teacher pose
     rotate_augment: bool = False          # distillation: views turned by random rotations (augment.rotate_views)
     symmetry_weight: float = 0.0          # complete, symmetric category: weight of model.axial_symmetry_loss
     minutes: float = 0.0                  # > 0: stop (validate, save) once training steps took this many minutes
@@ -265,7 +266,7 @@ def train(cfg: TrainConfig, resume: bool = False, log=print) -> pathlib.Path:
             x, R_t, t_t = rotate_views(x, R_t, t_t, rng) if cfg.rotate_augment else (x, R_t, t_t)
             loss, _ = distillation_loss(net(x, return_aux=True), targets["shapes"][targets["instance"][v]], R_t, t_t,
                                         model.anchors, symmetric=symmetry != "none", select_weight=cfg.select_weight,
-                                        shape_weight=cfg.shape_weight)
+                                        shape_weight=cfg.shape_weight, points=x, view_weight=cfg.view_weight)
         opt.zero_grad(set_to_none=True)
         loss.backward()
         opt.step()

@@ -52,6 +52,9 @@ def add_arguments(p) -> None:
     p.add_argument("--shape-weight", dest="shape_weight", type=float,
                    help="distillation: weight of the chamfer between the student's canonical shape and the teacher's "
                    "(default 1; the SDK's ICP re-scoring fits the view to that shape)")
+    p.add_argument("--view-weight", dest="view_weight", type=float,
+                   help="distillation: weight of the observed points' distance to the student's canonical shape at "
+                   "the teacher's pose (default 0; where the view lies is what ICP re-scoring fits)")
     p.add_argument("--rotate-augment", dest="rotate_augment", action="store_true", default=None,
                    help="distillation: turn each training view about its centroid by a uniform random rotation (its "
                    "teacher pose with it), beyond the 60 rotations the network is exactly equivariant to")
