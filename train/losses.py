@@ -15,7 +15,7 @@ import torch
 from equipose.core.errors import ConfigError
 from equipose.train.model import squared_distances
 
-__all__ = ["chamfer_min_of_60_loss", "axial_symmetry_loss", "reachable_targets", "distillation_loss"]
+__all__ = ["chamfer_min_of_60_loss", "axial_symmetry_loss", "reachable_targets", "view_distance", "distillation_loss"]
 
 
 def chamfer_min_of_60_loss(out: dict, quat_weight: float = 0.1) -> torch.Tensor:
@@ -76,6 +76,17 @@ def _subset_chamfer(a: torch.Tensor, b: torch.Tensor, stride: int) -> torch.Tens
     return d_ab + d_ba
 
 
+def view_distance(points: torch.Tensor, rotations: torch.Tensor, translations: torch.Tensor,
+                  shape: torch.Tensor) -> torch.Tensor:
+    """Mean squared distance [] from observed points, carried into the canonical frame by a pose, to a shape.
+
+    points [B, N, 3] (camera frame), rotations [B, 3, 3] (canonical → camera), translations [B, 3], shape [B, M, 3]
+    (canonical frame). One direction: a view covers only part of the shape.
+    """
+    seen = torch.einsum("bnj,bjk->bnk", points - translations[:, None], rotations)     # [B, N, 3] Rᵀ(x − t)
+    return squared_distances(seen, shape).min(dim=-1).values.mean()
+
+
 def distillation_loss(out: dict, shapes: torch.Tensor, rotations: torch.Tensor, translations: torch.Tensor,
                       anchors: torch.Tensor, symmetric: bool = False, quat_weight: float = 0.1,
                       select_weight: float = 0.0, select_tolerance: float = 1.5, select_deg: float = 10.0,
@@ -132,8 +143,7 @@ def distillation_loss(out: dict, shapes: torch.Tensor, rotations: torch.Tensor, 
     if view_weight > 0:
         if points is None:
             raise ConfigError("distillation_loss: view_weight > 0 needs the input points (points=[B, N, 3])")
-        seen = torch.einsum("bnj,bjk->bnk", points - translations[:, None], rotations)  # [B, N, 3] Rᵀ(x − t)
-        loss_view = squared_distances(seen, out["canonical_shape"]).min(dim=-1).values.mean()
+        loss_view = view_distance(points, rotations, translations, out["canonical_shape"])
         loss = loss + view_weight * loss_view
         parts["view"] = loss_view.item()
     if select_weight > 0:

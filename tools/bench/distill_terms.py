@@ -18,8 +18,7 @@ import torch
 
 from equipose.train.checkpoint import model_from_checkpoint
 from equipose.train.data import collate
-from equipose.train.losses import distillation_loss
-from equipose.train.model import squared_distances
+from equipose.train.losses import distillation_loss, view_distance
 from equipose.train.trainer import TrainConfig, _datasets
 
 
@@ -47,8 +46,7 @@ def main(argv=None) -> int:
             t = torch.from_numpy(z["translations"][idx]).float()                                  # [B, 3]
             _, parts = distillation_loss(model(x, return_aux=True), S, R, t, model.anchors, points=x,
                                          view_weight=1.0)
-            seen = torch.einsum("bnj,bjk->bnk", x - t[:, None], R)                                # [B, N, 3]
-            parts["teacher_view"] = squared_distances(seen, S).min(dim=-1).values.mean().item()
+            parts["teacher_view"] = view_distance(x, R, t, S).item()                             # reference
             for k, v in parts.items():
                 sums[k] = sums.get(k, 0.0) + v / args.batches
     print("  ".join(f"{k} {v:.6f}" for k, v in sums.items()))
