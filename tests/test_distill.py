@@ -11,7 +11,7 @@ from equipose.cli import main  # noqa: E402
 from equipose.errors import ConfigError  # noqa: E402
 from equipose.train.checkpoint import load_checkpoint  # noqa: E402
 from equipose.train.distill import teacher_targets  # noqa: E402
-from equipose.train.losses import distillation_loss, reachable_targets  # noqa: E402
+from equipose.train.losses import distillation_loss, icp_drift, reachable_targets  # noqa: E402
 
 
 ANCHORS = torch.tensor(icosahedral.ANCHORS, dtype=torch.float32)                   # [60, 3, 3]
@@ -73,6 +73,33 @@ def test_view_term_measures_the_view_against_the_shape_at_the_teacher_pose():
     assert turned > 1e-3                                                          # a different teacher pose misfits
     with pytest.raises(ConfigError, match="input points"):
         distillation_loss(out, S, R_t, t_t, ANCHORS, view_weight=1.0)
+
+
+def test_drift_is_the_motion_icp_makes_from_the_teacher_pose():
+    g = torch.Generator().manual_seed(6)
+    S = (torch.rand(1, 1500, 3, generator=g) - 0.5) * torch.tensor([1.0, 0.6, 0.4])   # dense shape [1, M, 3]
+    R_t = torch.tensor(Rotation.random(1, random_state=7).as_matrix(), dtype=torch.float32)
+    t_t = torch.randn(1, 3, generator=g)
+    part = S[:, :200]                                                           # the part a camera sees
+    for deg in (0.0, 2.0):
+        turn = torch.tensor(Rotation.from_rotvec([0, 0, np.radians(deg)]).as_matrix(), dtype=torch.float32)
+        seen = part @ turn.T @ R_t[0].T + t_t                                    # view of the shape turned by `turn`
+        drift = icp_drift(seen, R_t, t_t, S, iters=5)                            # [1, 6]
+        assert np.degrees(drift[0, :3].norm().item()) == pytest.approx(deg, abs=0.2)
+        if deg:                                                                 # it turns the view back, about z
+            assert np.degrees(drift[0, 2].item()) == pytest.approx(-deg, abs=0.2)
+    # the term: zero at a fixed point, and its gradient reaches the student's shape
+    R_h = torch.tensor(Rotation.random(60, random_state=8).as_matrix(), dtype=torch.float32)[None]
+    shape = S.clone().requires_grad_(True)
+    out = _outputs(R_h, torch.zeros(1, 60, 3), shape)
+    exact = part @ R_t[0].T + t_t
+    assert distillation_loss(out, S, R_t, t_t, ANCHORS, points=exact, drift_weight=1.0)[1]["drift"] < 1e-8
+    loss, parts = distillation_loss(out, S, R_t, t_t, ANCHORS, points=seen, drift_weight=5.0, drift_iters=3)
+    assert parts["drift"] > 1e-4
+    loss.backward()
+    assert shape.grad is not None and shape.grad.abs().sum() > 0
+    with pytest.raises(ConfigError, match="input points"):
+        distillation_loss(out, S, R_t, t_t, ANCHORS, drift_weight=1.0)
 
 
 def test_pose_term_ignores_rotations_about_a_symmetry_axis():
@@ -209,3 +236,15 @@ def test_rotate_views_turns_views_and_targets_alike():
     assert float(torch.linalg.matrix_norm(turn - torch.eye(3, dtype=turn.dtype)).min()) > 1e-3
     with pytest.raises(ConfigError, match="rotate_views"):
         rotate_views(x[0], R, t, np.random.default_rng(0))
+
+
+def test_distillation_term_weights_are_checked():
+    from equipose.train.trainer import TrainConfig
+    with pytest.raises(ConfigError, match="give --teacher"):
+        TrainConfig.from_sources(mode="partial", drift_weight=1.0)
+    with pytest.raises(ConfigError, match="drift_iters must be ≥ 1"):
+        TrainConfig.from_sources(mode="partial", teacher="t.pt", drift_weight=1.0, drift_iters=0)
+    with pytest.raises(ConfigError, match="weights ≥ 0"):
+        TrainConfig.from_sources(mode="partial", teacher="t.pt", view_weight=-1.0)
+    cfg = TrainConfig.from_sources(mode="partial", teacher="t.pt", view_weight=3.0, drift_weight=10.0)
+    assert (cfg.view_weight, cfg.drift_weight, cfg.drift_iters) == (3.0, 10.0, 10)

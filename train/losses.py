@@ -87,12 +87,54 @@ def view_distance(points: torch.Tensor, rotations: torch.Tensor, translations: t
     return squared_distances(seen, shape).min(dim=-1).values.mean()
 
 
+def _skew(v: torch.Tensor) -> torch.Tensor:
+    """[..., 3] → [..., 3, 3] the cross-product matrix [v]×."""
+    zero = torch.zeros_like(v[..., 0])
+    return torch.stack([torch.stack([zero, -v[..., 2], v[..., 1]], -1),
+                        torch.stack([v[..., 2], zero, -v[..., 0]], -1),
+                        torch.stack([-v[..., 1], v[..., 0], zero], -1)], -2)
+
+
+def icp_drift(points: torch.Tensor, rotations: torch.Tensor, translations: torch.Tensor, shape: torch.Tensor,
+              iters: int = 10) -> torch.Tensor:
+    """How far [B, 6] point-to-point ICP of a view onto a shape moves away from a pose in ``iters`` iterations.
+
+    Convention: points [B, N, 3] camera frame, rotations [B, 3, 3] (canonical → camera), translations [B, 3], shape
+    [B, M, 3] canonical frame, model units. The view is carried into the canonical frame, p = Rᵀ(x − t); each
+    iteration pairs every p with its nearest shape point q and moves the view rigidly by the Gauss-Newton step of
+    Σ ‖p + ω × p + v − q‖² (ω applied exactly, exp([ω]×)) — the one-directional fit the SDK's re-scoring runs.
+    Returns the net motion (rotation vector [rad], translation [model units]) of the view: zero where the pose is a
+    fixed point. Differentiable in ``shape`` through every iteration's pairs (the pairing itself is not).
+    """
+    p0 = torch.einsum("bnj,bjk->bnk", points - translations[:, None], rotations).detach()   # [B, N, 3] Rᵀ(x − t)
+    B, N, _ = p0.shape
+    eye = torch.eye(3, dtype=p0.dtype)
+    R_net, v_net = eye.expand(B, 3, 3), torch.zeros(B, 3, dtype=p0.dtype)              # p = R_net p0 + v_net
+    for _ in range(max(1, int(iters))):
+        p = torch.einsum("bij,bnj->bni", R_net, p0) + v_net[:, None]                    # [B, N, 3]
+        with torch.no_grad():
+            nearest = squared_distances(p, shape).argmin(dim=-1)                         # [B, N]
+        q = torch.gather(shape, 1, nearest[..., None].expand(-1, -1, 3))               # [B, N, 3]
+        J = torch.cat([-_skew(p), eye.expand(B, N, 3, 3)], -1)                          # [B, N, 3, 6] ∂(ω×p + v)
+        A = torch.einsum("bnki,bnkj->bij", J, J) + 1e-6 * N * torch.eye(6, dtype=p.dtype)   # [B, 6, 6]
+        step = torch.linalg.solve(A, torch.einsum("bnki,bnk->bi", J, q - p))          # [B, 6] (ω, v)
+        dR = torch.linalg.matrix_exp(_skew(step[:, :3]))                                # [B, 3, 3]
+        R_net = dR @ R_net
+        v_net = torch.einsum("bij,bj->bi", dR, v_net) + step[:, 3:]
+    cos = ((R_net.diagonal(dim1=1, dim2=2).sum(-1) - 1) / 2).clamp(-1 + 1e-7, 1 - 1e-7)  # [B]
+    angle = torch.acos(cos)                                                             # [B] rad
+    axis = torch.stack([R_net[:, 2, 1] - R_net[:, 1, 2], R_net[:, 0, 2] - R_net[:, 2, 0],
+                        R_net[:, 1, 0] - R_net[:, 0, 1]], -1)                           # [B, 3] = 2 sin θ · axis
+    rotvec = axis * (angle / (2 * torch.sin(angle).clamp_min(1e-7)))[:, None]          # [B, 3]
+    return torch.cat([rotvec, v_net], 1)
+
+
 def distillation_loss(out: dict, shapes: torch.Tensor, rotations: torch.Tensor, translations: torch.Tensor,
                       anchors: torch.Tensor, symmetric: bool = False, quat_weight: float = 0.1,
                       select_weight: float = 0.0, select_tolerance: float = 1.5, select_deg: float = 10.0,
                       reach_weight: float = 1.0, reach_deg: float = 40.0, pose_points: int = 64,
                       shape_weight: float = 1.0, points: torch.Tensor | None = None,
-                      view_weight: float = 0.0) -> tuple:
+                      view_weight: float = 0.0, drift_weight: float = 0.0, drift_iters: int = 10) -> tuple:
     """Student loss against teacher targets; returns (loss, parts dict of floats).
 
     shape: ``shape_weight`` × chamfer(student canonical shape, teacher shape) — pins the student to the teacher's
@@ -113,6 +155,9 @@ def distillation_loss(out: dict, shapes: torch.Tensor, rotations: torch.Tensor, 
     squared distance to the student's canonical shape (one direction: the view covers part of the shape). It asks
     the predicted shape to be right where the camera sees the object, which is all the SDK's ICP re-scoring fits
     against, so that the teacher pose is where that fit settles.
+    drift (optional, ``drift_weight`` > 0, needs ``points``): the squared length ‖ω‖² + ‖v‖² of the net motion
+    ``drift_iters`` ICP iterations of the view onto the student's shape make from the teacher pose (``icp_drift``):
+    the view term asks the fit there to be close, this one asks the teacher pose to be where the fit stops.
     select (optional): cross-entropy making the student's own partial-view chamfer score pick a right hypothesis —
     uniform target over the nearest anchor's and those within ``select_deg`` of R* (symmetric: pose chamfer within
     ``select_tolerance`` × the nearest anchor's). ``out`` from ``forward(..., return_aux=True)``; shapes [B, M, 3],
@@ -146,6 +191,13 @@ def distillation_loss(out: dict, shapes: torch.Tensor, rotations: torch.Tensor, 
         loss_view = view_distance(points, rotations, translations, out["canonical_shape"])
         loss = loss + view_weight * loss_view
         parts["view"] = loss_view.item()
+    if drift_weight > 0:
+        if points is None:
+            raise ConfigError("distillation_loss: drift_weight > 0 needs the input points (points=[B, N, 3])")
+        drift = icp_drift(points, rotations, translations, out["canonical_shape"], drift_iters)   # [B, 6]
+        loss_drift = drift.pow(2).sum(1).mean()
+        loss = loss + drift_weight * loss_drift
+        parts["drift"] = loss_drift.item()
     if select_weight > 0:
         if symmetric:                                                                 # pose chamfer vs R* itself
             with torch.no_grad():

@@ -71,6 +71,8 @@ class TrainConfig:
     select_weight: float = 0.0            # distillation: weight of the hypothesis-selection cross-entropy
     shape_weight: float = 1.0             # distillation: weight of the canonical-shape chamfer to the teacher's shape
     view_weight: float = 0.0              # distillation: weight of the view's fit to that shape at the teacher pose
+    drift_weight: float = 0.0             # distillation: weight of how far ICP of the view onto it leaves that pose
+    drift_iters: int = 10                 # distillation: ICP iterations of that drift (losses.icp_drift)
     rotate_augment: bool = False          # distillation: views turned by random rotations (augment.rotate_views)
     symmetry_weight: float = 0.0          # complete, symmetric category: weight of model.axial_symmetry_loss
     minutes: float = 0.0                  # > 0: stop (validate, save) once training steps took this many minutes
@@ -97,6 +99,12 @@ class TrainConfig:
             raise ConfigError("--teacher-priors / --teacher-flip apply to the teacher's poses: give --teacher too")
         if cfg.batch_size < 1 or cfg.steps < 0:
             raise ConfigError("batch_size must be ≥ 1 and steps ≥ 0")
+        if (cfg.view_weight or cfg.drift_weight) and not cfg.teacher:
+            raise ConfigError("--view-weight / --drift-weight weigh distillation terms: give --teacher too")
+        if cfg.drift_iters < 1 or min(cfg.view_weight, cfg.drift_weight, cfg.shape_weight) < 0:
+            raise ConfigError(f"drift_iters must be ≥ 1 and the loss weights ≥ 0, got drift_iters {cfg.drift_iters}, "
+                              f"view_weight {cfg.view_weight}, drift_weight {cfg.drift_weight}, "
+                              f"shape_weight {cfg.shape_weight}")
         return cfg
 
 
@@ -266,7 +274,8 @@ def train(cfg: TrainConfig, resume: bool = False, log=print) -> pathlib.Path:
             x, R_t, t_t = rotate_views(x, R_t, t_t, rng) if cfg.rotate_augment else (x, R_t, t_t)
             loss, _ = distillation_loss(net(x, return_aux=True), targets["shapes"][targets["instance"][v]], R_t, t_t,
                                         model.anchors, symmetric=symmetry != "none", select_weight=cfg.select_weight,
-                                        shape_weight=cfg.shape_weight, points=x, view_weight=cfg.view_weight)
+                                        shape_weight=cfg.shape_weight, points=x, view_weight=cfg.view_weight,
+                                        drift_weight=cfg.drift_weight, drift_iters=cfg.drift_iters)
         opt.zero_grad(set_to_none=True)
         loss.backward()
         opt.step()

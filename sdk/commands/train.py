@@ -55,6 +55,12 @@ def add_arguments(p) -> None:
     p.add_argument("--view-weight", dest="view_weight", type=float,
                    help="distillation: weight of the observed points' distance to the student's canonical shape at "
                    "the teacher's pose (default 0; where the view lies is what ICP re-scoring fits)")
+    p.add_argument("--drift-weight", dest="drift_weight", type=float,
+                   help="distillation: weight of how far --drift-iters ICP iterations of the view onto the student's "
+                   "canonical shape move from the teacher's pose (default 0; asks that pose to be where the SDK's "
+                   "ICP re-scoring settles)")
+    p.add_argument("--drift-iters", dest="drift_iters", type=int,
+                   help="distillation: ICP iterations of the drift term (default 10)")
     p.add_argument("--rotate-augment", dest="rotate_augment", action="store_true", default=None,
                    help="distillation: turn each training view about its centroid by a uniform random rotation (its "
                    "teacher pose with it), beyond the 60 rotations the network is exactly equivariant to")

@@ -4,8 +4,10 @@ Usage: python tools/bench/distill_terms.py --state train/state/chair-partial [--
 
 Prints the mean over ``--batches`` batches (batch size and views from the state's config, fixed seed) of the terms
 of ``equipose.train.losses.distillation_loss`` — ``shape`` (chamfer to the teacher's shape), ``pose``, ``reach``,
-``view`` (the input points at the teacher pose against the student's shape) — and ``teacher_view``: the same view
-distance against the teacher's own shape, the reference for ``view``. Model units² (mean squared distances).
+``view`` (the input points at the teacher pose against the student's shape), ``drift`` (the squared length of the
+motion 10 ICP iterations of the view onto that shape make from the teacher pose) — and ``teacher_view`` /
+``teacher_drift``: the same against the teacher's own shape, the references. Model units² (mean squared distances);
+``drift_deg`` / ``teacher_drift_deg``: the mean rotation of that motion in degrees.
 Needs the state's cached teacher targets (``teacher.npz``, written by the first training slice).
 """
 from __future__ import annotations
@@ -18,7 +20,7 @@ import torch
 
 from equipose.train.checkpoint import model_from_checkpoint
 from equipose.train.data import collate
-from equipose.train.losses import distillation_loss, view_distance
+from equipose.train.losses import distillation_loss, icp_drift, view_distance
 from equipose.train.trainer import TrainConfig, _datasets
 
 
@@ -44,9 +46,14 @@ def main(argv=None) -> int:
             S = torch.from_numpy(z["shapes"][z["instance"][idx]]).float()                         # [B, M, 3]
             R = torch.from_numpy(z["rotations"][idx]).float()                                     # [B, 3, 3]
             t = torch.from_numpy(z["translations"][idx]).float()                                  # [B, 3]
-            _, parts = distillation_loss(model(x, return_aux=True), S, R, t, model.anchors, points=x,
-                                         view_weight=1.0)
+            out = model(x, return_aux=True)
+            _, parts = distillation_loss(out, S, R, t, model.anchors, points=x,
+                                         view_weight=1.0, drift_weight=1.0)
+            parts["drift_deg"] = np.degrees(icp_drift(x, R, t, out["canonical_shape"])[:, :3].norm(dim=1).mean().item())
             parts["teacher_view"] = view_distance(x, R, t, S).item()                             # reference
+            w = icp_drift(x, R, t, S)                                                              # [B, 6]
+            parts["teacher_drift"] = w.pow(2).sum(1).mean().item()
+            parts["teacher_drift_deg"] = np.degrees(w[:, :3].norm(dim=1).mean().item())
             for k, v in parts.items():
                 sums[k] = sums.get(k, 0.0) + v / args.batches
     print("  ".join(f"{k} {v:.6f}" for k, v in sums.items()))
