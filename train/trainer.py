@@ -24,6 +24,7 @@ import torch
 from tqdm import tqdm
 
 from equipose.core.errors import ConfigError
+from equipose.train.config_checks import check_config
 from equipose.train.augment import rotate_views
 from equipose.train.checkpoint import load_checkpoint, optimizer_to, save_checkpoint
 from equipose.train.data import collate, make_dataset
@@ -91,20 +92,7 @@ class TrainConfig:
             values.update(loaded)
         values.update({k: v for k, v in overrides.items() if v is not None and k in names})
         cfg = cls(**values)
-        if cfg.mode not in ("complete", "partial"):
-            raise ConfigError(f"mode must be complete or partial, got {cfg.mode!r}")
-        if cfg.teacher and cfg.mode != "partial":
-            raise ConfigError("--teacher distils a partial-view model: use it with --mode partial")
-        if (cfg.teacher_priors or cfg.teacher_flip) and not cfg.teacher:   # (the steps are checked by distill)
-            raise ConfigError("--teacher-priors / --teacher-flip apply to the teacher's poses: give --teacher too")
-        if cfg.batch_size < 1 or cfg.steps < 0:
-            raise ConfigError("batch_size must be ≥ 1 and steps ≥ 0")
-        if (cfg.view_weight or cfg.drift_weight) and not cfg.teacher:
-            raise ConfigError("--view-weight / --drift-weight weigh distillation terms: give --teacher too")
-        if cfg.drift_iters < 1 or min(cfg.view_weight, cfg.drift_weight, cfg.shape_weight) < 0:
-            raise ConfigError(f"drift_iters must be ≥ 1 and the loss weights ≥ 0, got drift_iters {cfg.drift_iters}, "
-                              f"view_weight {cfg.view_weight}, drift_weight {cfg.drift_weight}, "
-                              f"shape_weight {cfg.shape_weight}")
+        check_config(cfg)
         return cfg
 
 
