@@ -76,6 +76,11 @@ def _subset_chamfer(a: torch.Tensor, b: torch.Tensor, stride: int) -> torch.Tens
     return d_ab + d_ba
 
 
+def _to_canonical(points: torch.Tensor, rotations: torch.Tensor, translations: torch.Tensor) -> torch.Tensor:
+    """Camera-frame points [B, N, 3] into the canonical frame of poses [B, 3, 3], [B, 3]: Rᵀ(x − t)."""
+    return torch.einsum("bnj,bjk->bnk", points - translations[:, None], rotations)
+
+
 def view_distance(points: torch.Tensor, rotations: torch.Tensor, translations: torch.Tensor,
                   shape: torch.Tensor) -> torch.Tensor:
     """Mean squared distance [] from observed points, carried into the canonical frame by a pose, to a shape.
@@ -83,7 +88,7 @@ def view_distance(points: torch.Tensor, rotations: torch.Tensor, translations: t
     points [B, N, 3] (camera frame), rotations [B, 3, 3] (canonical → camera), translations [B, 3], shape [B, M, 3]
     (canonical frame). One direction: a view covers only part of the shape.
     """
-    seen = torch.einsum("bnj,bjk->bnk", points - translations[:, None], rotations)     # [B, N, 3] Rᵀ(x − t)
+    seen = _to_canonical(points, rotations, translations)                               # [B, N, 3]
     return squared_distances(seen, shape).min(dim=-1).values.mean()
 
 
@@ -106,7 +111,7 @@ def icp_drift(points: torch.Tensor, rotations: torch.Tensor, translations: torch
     Returns the net motion (rotation vector [rad], translation [model units]) of the view: zero where the pose is a
     fixed point. Differentiable in ``shape`` through every iteration's pairs (the pairing itself is not).
     """
-    p0 = torch.einsum("bnj,bjk->bnk", points - translations[:, None], rotations).detach()   # [B, N, 3] Rᵀ(x − t)
+    p0 = _to_canonical(points, rotations, translations).detach()                       # [B, N, 3]
     B, N, _ = p0.shape
     eye = torch.eye(3, dtype=p0.dtype)
     R_net, v_net = eye.expand(B, 3, 3), torch.zeros(B, 3, dtype=p0.dtype)              # p = R_net p0 + v_net

@@ -47,13 +47,12 @@ def main(argv=None) -> int:
             R = torch.from_numpy(z["rotations"][idx]).float()                                     # [B, 3, 3]
             t = torch.from_numpy(z["translations"][idx]).float()                                  # [B, 3]
             out = model(x, return_aux=True)
-            _, parts = distillation_loss(out, S, R, t, model.anchors, points=x,
-                                         view_weight=1.0, drift_weight=1.0)
-            parts["drift_deg"] = np.degrees(icp_drift(x, R, t, out["canonical_shape"])[:, :3].norm(dim=1).mean().item())
+            _, parts = distillation_loss(out, S, R, t, model.anchors, points=x, view_weight=1.0)
             parts["teacher_view"] = view_distance(x, R, t, S).item()                             # reference
-            w = icp_drift(x, R, t, S)                                                              # [B, 6]
-            parts["teacher_drift"] = w.pow(2).sum(1).mean().item()
-            parts["teacher_drift_deg"] = np.degrees(w[:, :3].norm(dim=1).mean().item())
+            for name, shape in (("drift", out["canonical_shape"]), ("teacher_drift", S)):
+                w = icp_drift(x, R, t, shape)                                                      # [B, 6]
+                parts[name] = w.pow(2).sum(1).mean().item()                                       # the loss term
+                parts[name + "_deg"] = np.degrees(w[:, :3].norm(dim=1).mean().item())
             for k, v in parts.items():
                 sums[k] = sums.get(k, 0.0) + v / args.batches
     print("  ".join(f"{k} {v:.6f}" for k, v in sums.items()))
