@@ -341,6 +341,12 @@ def test_refined_calibration_round_trip(tiny_ckpt, tmp_path, rng):
     assert PoseEstimator(path, threads=1, polish=0).polish == 0
     with pytest.raises(MetadataError):
         update_metadata(path, refine_calibration={**calp, "polish": -1})
+    assert calp["densify"] == 0 and PoseEstimator(path, threads=1).densify == 0
+    cald = calibrate_onnx_refined(path, canon, k=2, iters=3, densify=4)     # the calibration runs with the template
+    update_metadata(path, refine_calibration=cald)
+    assert PoseEstimator(path, threads=1).densify == 4 and PoseEstimator(path, threads=1, refine=0).densify == 0
+    with pytest.raises(MetadataError):
+        update_metadata(path, refine_calibration={**cald, "densify": 99})
     update_metadata(path, refine_calibration=cal3)
     before = path.read_bytes()
     with pytest.raises(MetadataError):                                       # validated before writing …

@@ -163,7 +163,7 @@ def apply_calibration(R: np.ndarray, t: np.ndarray, calibration: dict | None) ->
 
 def calibrate_onnx_refined(model_path, canonical_points: np.ndarray, k: int = 5, iters: int = 10,
                            unsigned_axis: bool = False, seed: int = 0, copies: int = 1,
-                           visibility: float | None = None, polish: int = 0) -> dict:
+                           visibility: float | None = None, polish: int = 0, densify: int = 0) -> dict:
     """Calibration of an exported model *as the SDK runs it with ICP re-scoring* (``PoseEstimator(refine=k)``).
 
     Convention: ``canonical_points`` [K, N', 3] model units, category frame (identity pose, as ``calibrate_model``).
@@ -174,7 +174,8 @@ def calibrate_onnx_refined(model_path, canonical_points: np.ndarray, k: int = 5,
     metadata entry), and ``visibility`` (recorded for the SDK's view-aware re-scoring; the calibration itself runs
     without it: its inputs sit at the origin, with no camera to see them from, and the re-scoring only chooses
     between distinct poses, which leaves the frame offset of the right ones as it is), and ``polish`` (ICP iterations
-    on the selected pose, ``PoseEstimator(polish=...)``; the calibration runs with it). torch-free.
+    on the selected pose, ``PoseEstimator(polish=...)``) and ``densify`` (the ICP template's midpoints,
+    ``PoseEstimator(densify=...)``): the calibration runs with both. torch-free.
     """
     from equipose.runtime.estimator import PoseEstimator
 
@@ -182,7 +183,7 @@ def calibrate_onnx_refined(model_path, canonical_points: np.ndarray, k: int = 5,
     if pts.ndim != 3 or pts.shape[-1] != 3:
         raise ConfigError(f"canonical_points must be [K, N, 3], got {pts.shape}")
     est = PoseEstimator(model_path, threads=1, refine=int(k), refine_iters=int(iters), copies=int(copies),
-                        visibility=None, polish=int(polish))
+                        visibility=None, polish=int(polish), densify=int(densify))
     est.calibration_rotation, est.calibration_translation = np.eye(3), np.zeros(3)     # raw, learned-frame poses
     est.metadata = {**est.metadata, "handle": None, "shape_prior": None, "rest_facet": None,  # stages need the category
                     "flip_templates": None}                                             # frame: off
@@ -191,5 +192,5 @@ def calibrate_onnx_refined(model_path, canonical_points: np.ndarray, k: int = 5,
     dR = np.stack([r.rotation for r in res])                                          # [K, 3, 3]
     dt = np.stack([r.translation for r in res]) / est.scale                           # [K, 3] model units
     cal = calibrate_offsets(dR, dt, symmetry=est.symmetry, unsigned_axis=unsigned_axis, seed=seed)
-    return {"k": int(k), "iters": int(iters), "copies": int(copies), "polish": int(polish),
+    return {"k": int(k), "iters": int(iters), "copies": int(copies), "polish": int(polish), "densify": int(densify),
             "visibility": None if visibility is None else float(visibility), **cal}

@@ -27,6 +27,10 @@ def add_arguments(p) -> None:
     p.add_argument("--polish", type=int, default=0,
                    help="--model: ICP iterations on the pose the re-scoring selected, on all the object's points "
                    "(equipose.runtime.refine; default 0; sofa-partial ships with 30); the calibration runs with them")
+    p.add_argument("--densify", type=int, default=0,
+                   help="--model: add to ICP's template the midpoints to each canonical point's N nearest neighbours "
+                   "(equipose.runtime.template; default 0 = off; chair-partial ships with 4); the calibration runs "
+                   "with them")
     p.add_argument("--visibility", type=float, default=None,
                    help="with --model, partial-view models: rank the refined hypotheses by the view-aware residual "
                    "with this hidden-point-removal exponent (equipose.runtime.visibility; e.g. 1; default off)")
@@ -65,11 +69,11 @@ def _run_model(args) -> int:
     canon = np.stack([ds.sample(int(i), np.random.default_rng([args.seed, int(i)]))["canonical"] for i in idx])
     cal = calibrate_onnx_refined(args.model, canon, k=args.refine, iters=args.refine_iters,
                                  unsigned_axis=(category == "can"), seed=args.seed, copies=args.copies,
-                                 visibility=args.visibility, polish=args.polish)
+                                 visibility=args.visibility, polish=args.polish, densify=args.densify)
     cal["inputs"] = f"{len(idx)} category-frame {category}/{mode} training samples"
     update_metadata(args.model, refine_calibration=cal)
     print(f"refined calibration (k={args.refine}, {args.refine_iters} ICP iterations, {args.copies} copies, "
-          f"visibility {args.visibility}, polish {args.polish}) from {cal['n']} inputs: rotation "
+          f"visibility {args.visibility}, polish {args.polish}, densify {args.densify}) from {cal['n']} inputs: rotation "
           f"inliers {cal['inlier_fraction']:.2f}, translation inliers {cal['translation_inlier_fraction']:.2f} "
           f"→ {args.model} (metadata refine_calibration)")
     return 0

@@ -25,7 +25,8 @@ Optional keys (absent in older files): ``precision`` "fp32" | "int8" (weights of
 re-scoring of the k best hypotheses with ``copies`` rotated input copies per object (absent: 1; ``equipose calibrate
 --model M --refine K --copies C``) and, for partial-view models, ``visibility`` (absent/null: off; the exponent of the
 view-aware re-scoring, ``equipose.runtime.visibility``, ``--visibility E``) and ``polish`` (absent: 0; ICP
-iterations on the selected pose, ``--polish N``); ``handle`` JSON {"direction": 3}:
+iterations on the selected pose, ``--polish N``) and ``densify`` (absent: 0; the ICP template gains the midpoints to
+each point's N nearest neighbours, ``equipose.runtime.template``, ``--densify N``); ``handle`` JSON {"direction": 3}:
 the unit handle direction in the category frame, for categories whose pose includes a handle (``mug``: +x); the SDK
 then reports whether the handle was seen (``PoseResult.handle_visible``); ``shape_prior`` "cylinder": the SDK takes the
 symmetry axis from the observed normals (cans and tins, ``equipose.runtime.cylinder``); ``flip_templates`` JSON
@@ -45,13 +46,14 @@ import numpy as np
 from equipose.core import icosahedral
 from equipose.core.errors import MetadataError, ModelVersionError
 
-__all__ = ["FORMAT_VERSION", "REQUIRED_KEYS", "FRAME_PRIOR_STEPS", "MAX_COPIES", "MAX_POLISH",
+__all__ = ["FORMAT_VERSION", "REQUIRED_KEYS", "FRAME_PRIOR_STEPS", "MAX_COPIES", "MAX_POLISH", "MAX_DENSIFY",
            "encode_metadata", "decode_metadata"]
 
 FORMAT_VERSION = 1
 FRAME_PRIOR_STEPS = ("rest", "mirror", "footprint")       # equipose.runtime.frame_priors
 MAX_COPIES = 64                                            # refine_calibration copies; equipose.runtime.copies
 MAX_POLISH = 200                                           # refine_calibration polish; equipose.runtime.refine
+MAX_DENSIFY = 16                                           # refine_calibration densify; equipose.runtime.template
 REQUIRED_KEYS = ("equipose_format", "equipose_version", "category", "preset", "model_config", "num_points",
                  "num_canonical_points", "scale", "partial", "symmetry", "calibration_rotation",
                  "calibration_translation", "anchors", "random_init", "training", "metrics")
@@ -205,13 +207,15 @@ def decode_metadata(props: dict, source: str = "model") -> dict:
             "rotation": np.asarray(rc["rotation"], dtype=np.float64).reshape(3, 3),
             "translation": np.asarray(rc["translation"], dtype=np.float64).reshape(3),
             "visibility": None if rc.get("visibility") is None else float(rc["visibility"]),
-            "polish": int(rc.get("polish", 0))}
+            "polish": int(rc.get("polish", 0)), "densify": int(rc.get("densify", 0))}
         if rc and not 1 <= out["refine_calibration"]["copies"] <= MAX_COPIES:
             raise ValueError(f"copies must be in 1..{MAX_COPIES}, got {out['refine_calibration']['copies']}")
         if rc and rc.get("visibility") is not None and not -3 <= float(rc["visibility"]) <= 6:
             raise ValueError(f"visibility must be an exponent in -3..6, got {rc['visibility']}")
         if rc and not 0 <= out["refine_calibration"]["polish"] <= MAX_POLISH:
             raise ValueError(f"polish must be in 0..{MAX_POLISH} ICP iterations, got {out['refine_calibration']['polish']}")
+        if rc and not 0 <= out["refine_calibration"]["densify"] <= MAX_DENSIFY:
+            raise ValueError(f"densify must be in 0..{MAX_DENSIFY} neighbours, got {out['refine_calibration']['densify']}")
     except (ValueError, KeyError, TypeError) as e:
         raise MetadataError(f"{source}: malformed refine_calibration metadata ({e}); re-run 'equipose calibrate "
                             "--model'") from None

@@ -22,6 +22,7 @@ from equipose.runtime.copies import copy_batch, copy_rotations
 from equipose.runtime.instance import INSTANCE_ITERS, build_instance_model, finish_instance
 from equipose.runtime.postprocess import finish_category
 from equipose.runtime.refine import resolve_polish
+from equipose.runtime.template import resolve_densify
 from equipose.runtime.result import FrameError, PoseResult
 from equipose.runtime.upright import check_up, per_object_up, resolve_plane_up
 from equipose.runtime.visibility import resolve_visibility
@@ -53,6 +54,9 @@ class PoseEstimator:
             calibrated for (metadata ``refine_calibration``, ``equipose calibrate --model M --refine K``), else 0.
         refine_iters, polish: ICP iterations per refined hypothesis (default: the file's, else 10), and on the selected
             pose after re-scoring (0 = none; "auto": the file's, ``equipose calibrate --model M --polish N``, else 0).
+        densify: the ICP template gains the midpoints to each canonical point's ``densify`` nearest neighbours
+            (``equipose.runtime.template``; 0 = the predicted shape as it is; "auto": the file's, ``equipose calibrate
+            --model M --densify N``, when re-scoring runs).
         copies: rotated input copies per object (``equipose.runtime.copies``): the network runs on ``copies`` turned
             copies of each object in one batch; the pose starts from their consensus and is refined against their
             mean canonical shape (1 = off). "auto" (default): what the file was calibrated for (metadata
@@ -73,7 +77,8 @@ class PoseEstimator:
 
     def __init__(self, model_path, threads: int | None = None, *, crop_options: dict | None = None, top_k: int = 5,
                  refine: int | str = "auto", refine_iters: int | None = None, copies: int | str = "auto",
-                 visibility: float | str | None = "auto", polish: int | str = "auto", adaptive_threads: bool = True,
+                 visibility: float | str | None = "auto", polish: int | str = "auto",
+                 densify: int | str = "auto", adaptive_threads: bool = True,
                  model_points=None, instance_k: int = 10, instance_iters: int = INSTANCE_ITERS):
         path = resolve_model_file(model_path)
         if threads is not None and (not isinstance(threads, int) or threads < 0):
@@ -102,6 +107,7 @@ class PoseEstimator:
             raise ConfigError(f"refine must be 'auto' or an int ≥ 0 and refine_iters an int ≥ 1, got {refine!r}, "
                               f"{refine_iters!r}")
         self.refine, self.refine_iters, self.polish = refine, refine_iters, resolve_polish(polish, rcal, refine)
+        self.densify = resolve_densify(densify, rcal, refine)
         if refine and rcal:                                                     # calibrated for refined poses
             self.calibration_rotation, self.calibration_translation = rcal["rotation"], rcal["translation"]
         copies = (rcal["copies"] if (refine and rcal and model_points is None) else 1) if copies == "auto" else copies

@@ -1,5 +1,6 @@
 """Category-level post-processing of one network run: ICP re-scoring, calibration into the category frame, hypothesis
-selection (then ``polish`` more ICP iterations on the chosen pose; or the up prior's, ``equipose.runtime.upright``,
+selection (then ``polish`` more ICP iterations on the chosen pose; ICP's template is the predicted canonical shape,
+with ``densify`` the midpoints between its neighbouring points added, ``equipose.runtime.template``; or the up prior's, ``equipose.runtime.upright``,
 with "up" given or read off a complete cloud's resting face, ``equipose.runtime.rest_facet``), exact SO(3), metres,
 and the geometric stages.
 
@@ -22,6 +23,7 @@ from equipose.runtime.refine import icp_multi, refine_hypotheses
 from equipose.runtime.rest_facet import rest_facet_up
 from equipose.runtime.result import PoseResult
 from equipose.runtime.stages import apply_stages
+from equipose.runtime.template import densify_template
 from equipose.runtime.upright import select_upright
 from equipose.runtime.visibility import VIEW_AMBIGUOUS_MARGIN, view_rescore
 
@@ -53,11 +55,12 @@ def finish_category(est, outputs: dict, b: int, prep, *, prefer=None, prefer_mar
         s_all = outputs["hypothesis_scores"][b]                                 # [60]
         canon = np.asarray(outputs["canonical_shape"][b], np.float64)           # [M, 3] learned frame, model units
     rescore = bool(est.refine) and up is None
+    icp_template = densify_template(canon, est.densify) if rescore else canon   # [M', 3] ICP's template
     if rescore:                                                                 # ICP re-scoring, learned frame
-        R_all, t_all, s_all = refine_hypotheses(prep.model_points, canon, R_all, t_all, s_all, k=est.refine,
+        R_all, t_all, s_all = refine_hypotheses(prep.model_points, icp_template, R_all, t_all, s_all, k=est.refine,
                                                 iters=est.refine_iters, bidirectional=not est.partial)
         if K > 1:                                                               # the consensus, refined the same way
-            R1, t1, r1 = icp_multi(prep.model_points, canon, R_c[None], t_c[None], iters=est.refine_iters,
+            R1, t1, r1 = icp_multi(prep.model_points, icp_template, R_c[None], t_c[None], iters=est.refine_iters,
                                    bidirectional=not est.partial)
             R_c, t_c, s_c = R1[0], t1[0], float(r1[0])
     if K > 1:        # the consensus takes the place of its nearest hypothesis and ranks first
@@ -80,7 +83,7 @@ def finish_category(est, outputs: dict, b: int, prep, *, prefer=None, prefer_mar
                                 prefer_margin=prefer_margin,
                                 **({"ambiguous_margin": VIEW_AMBIGUOUS_MARGIN} if viewed else {}))
         if rescore and est.polish:                                              # more ICP on the chosen pose
-            Rp, tp, _ = icp_multi(every_point, canon, R_all[sel.index][None], t_all[sel.index][None],
+            Rp, tp, _ = icp_multi(every_point, icp_template, R_all[sel.index][None], t_all[sel.index][None],
                                   iters=est.polish, bidirectional=not est.partial)
             Rp, tp = apply_calibration(Rp, tp, dR, dt)                          # [1, 3, 3], [1, 3] category frame
             R_cat[sel.index], t_cat[sel.index] = Rp[0], tp[0]

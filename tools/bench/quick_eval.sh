@@ -3,7 +3,7 @@
 # folder → refined calibration (ICP re-scoring of 5) → the stages ship_model.sh would add → SDK evaluation on the
 # test set: the plain network (before the stages) and the default pipeline.
 # Usage: tools/bench/quick_eval.sh RUN_DIR CATEGORY MODE [CALIB_NUM]
-#   EQ, SCALE, EXPORT_CATEGORY, REFINE_ITERS, COPIES, VISIBILITY, POLISH, REST_FACET, FRAME_PRIORS, FLIP_TEACHER, FLIP_AXES, FLIP_POOL as in ship_model.sh;
+#   EQ, SCALE, EXPORT_CATEGORY, REFINE_ITERS, COPIES, VISIBILITY, POLISH, DENSIFY, REST_FACET, FRAME_PRIORS, FLIP_TEACHER, FLIP_AXES, FLIP_POOL as in ship_model.sh;
 #   KEEP=path.onnx keeps the evaluated file there.
 set -euo pipefail
 RUN=$1; CAT=$2; MODE=$3; NUM=${4:-512}
@@ -12,7 +12,7 @@ VIEWS=$(python3 -c "import json;print(json.load(open('$RUN/config.json')).get('v
 TMP=$(mktemp -d); M=$TMP/model.onnx; trap 'rm -rf "$TMP"' EXIT
 $EQ calibrate --checkpoint "$RUN/latest.pt" --num "$NUM" --out "$RUN/calibrated.pt" > "$RUN/calibrate.log"
 $EQ export --checkpoint "$RUN/calibrated.pt" -o "$M" --category "$ECAT" ${SCALE:+--scale $SCALE} > /dev/null
-$EQ calibrate --model "$M" --num "$NUM" --views "$VIEWS" --refine 5 ${REFINE_ITERS:+--refine-iters $REFINE_ITERS} ${COPIES:+--copies $COPIES} ${VISIBILITY:+--visibility $VISIBILITY} ${POLISH:+--polish $POLISH} > /dev/null
+$EQ calibrate --model "$M" --num "$NUM" --views "$VIEWS" --refine 5 ${REFINE_ITERS:+--refine-iters $REFINE_ITERS} ${COPIES:+--copies $COPIES} ${VISIBILITY:+--visibility $VISIBILITY} ${POLISH:+--polish $POLISH} ${DENSIFY:+--densify $DENSIFY} > /dev/null
 $EQ eval --model "$M" --category "$ECAT" --mode "$MODE" --icp-templates 0 --refine 0 2>&1 | grep -E "^equipose" | sed 's/^/plain  /'
 if [ -n "${REST_FACET:-}" ]; then
   $PY -c "from equipose.export.onnx_export import update_metadata as u; u('$M', rest_facet={'tolerance_deg': float('$REST_FACET')})"

@@ -12,7 +12,8 @@
 #   object, equipose.runtime.copies; default 1; chair-partial and sofa-partial ship with 8)  VISIBILITY=E (partial
 #   views: view-aware re-scoring with that hidden-point-removal exponent, equipose.runtime.visibility; default off;
 #   chair-partial and sofa-partial ship with 1)  POLISH=N (ICP iterations on the selected
-#   pose, equipose.runtime.refine; default 0; sofa-partial ships with 30)  FLIP_TEACHER=model FLIP_AXES=z
+#   pose, equipose.runtime.refine; default 0; sofa-partial ships with 30)  DENSIFY=N (ICP template plus the midpoints
+#   to each canonical point's N nearest neighbours, equipose.runtime.template; default 0)  FLIP_TEACHER=model FLIP_AXES=z
 #   FLIP_POOL=24 (front/back templates from that complete-shape model, the 6 of FLIP_POOL reconstructions that agree
 #   on the frame, equipose.export.flip_templates, added before evaluation)
 #   REST_FACET=deg (complete clouds: the rest-facet stage with that tolerance, metadata rest_facet)
@@ -34,7 +35,7 @@ fi
 for F in "$NAME" "$NAME.int8"; do
   if [ "$REFINE" != 0 ]; then
     $EQ calibrate --model "sdk/models/$F.onnx" --num "$NUM" --views "$VIEWS" --refine "$REFINE" \
-        ${REFINE_ITERS:+--refine-iters $REFINE_ITERS} ${COPIES:+--copies $COPIES} ${VISIBILITY:+--visibility $VISIBILITY} ${POLISH:+--polish $POLISH}
+        ${REFINE_ITERS:+--refine-iters $REFINE_ITERS} ${COPIES:+--copies $COPIES} ${VISIBILITY:+--visibility $VISIBILITY} ${POLISH:+--polish $POLISH} ${DENSIFY:+--densify $DENSIFY}
     $EQ eval --model "sdk/models/$F.onnx" --category "$ECAT" --mode "$EVAL_MODE" --refine 0 --icp-templates 0 \
         | tee "$OUT/$F.norefine.txt"
   fi

@@ -1,0 +1,56 @@
+"""A denser ICP template: the predicted canonical shape plus midpoints between neighbouring points.
+
+The network predicts its canonical shape as a few hundred points (256 for the edge presets) and the observation has
+as many. ICP pairs each observed point with its nearest template point, so a sparse template quantises the pairs:
+an observed point between two template points is pulled toward one of them, and the fitted pose carries that
+quantisation. Midpoints to each point's ``k`` nearest neighbours fill the surface between them (256 points → ≈ 700
+at ``k`` = 4) at a modest ICP cost (cKDTree queries grow with the log of the template size).
+
+Measured (2026-11-25, chair-partial v0.17 file, 500 test views, its refined calibration unchanged): median
+rotation error 3.99° / 5° accuracy 0.58 → 3.89° / 0.61 (k = 4), 3.93° / 0.61 (6), 4.07° / 0.61 (8), 4.08° / 0.58 (2).
+
+Convention: model units, the frame of the template given (the SDK's learned frame); order: the original points
+first, then the midpoints.
+"""
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from equipose.core.errors import ConfigError, InvalidPointsError
+from equipose.core.metadata import MAX_DENSIFY
+
+__all__ = ["densify_template", "resolve_densify", "MAX_DENSIFY"]
+
+
+def densify_template(points: np.ndarray, k: int) -> np.ndarray:
+    """[M, 3] template → [M + D, 3]: the points, then the midpoint of every pair in which one point is among the
+    other's ``k`` nearest neighbours (each pair once). ``k`` = 0 returns the points unchanged (as float64)."""
+    Y = np.asarray(points, np.float64)
+    if Y.ndim != 2 or Y.shape[1] != 3:
+        raise InvalidPointsError(f"densify_template needs a [M, 3] template, got {Y.shape}")
+    if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or not 0 <= k <= MAX_DENSIFY:
+        raise ConfigError(f"densify k must be an int in 0..{MAX_DENSIFY} (neighbours per template point), got {k!r}")
+    if k == 0 or len(Y) < 2:
+        return Y
+    k = min(int(k), len(Y) - 1)
+    _, nn = cKDTree(Y).query(Y, k + 1)                                          # [M, k+1], column 0: the point
+    i = np.repeat(np.arange(len(Y)), k)                                         # [M·k]
+    j = nn[:, 1:].reshape(-1)                                                   # [M·k]
+    pairs = np.unique(np.stack([np.minimum(i, j), np.maximum(i, j)], 1), axis=0)  # [D, 2] each pair once
+    pairs = pairs[pairs[:, 0] != pairs[:, 1]]                                   # duplicate points: no midpoint
+    return np.concatenate([Y, (Y[pairs[:, 0]] + Y[pairs[:, 1]]) / 2])         # [M + D, 3]
+
+
+def resolve_densify(densify, refine_calibration: dict | None, refine: int) -> int:
+    """``PoseEstimator(densify=...)`` → neighbours per template point for the ICP template (0 = the predicted shape as
+    it is). "auto": the file's ``refine_calibration["densify"]`` when its re-scoring runs (``refine`` > 0), else 0."""
+    if isinstance(densify, str) and densify == "auto":
+        return int((refine_calibration or {}).get("densify", 0)) if refine else 0
+    if isinstance(densify, bool) or not isinstance(densify, (int, np.integer)) or not 0 <= densify <= MAX_DENSIFY:
+        raise ConfigError(f"densify must be 'auto' or an int in 0..{MAX_DENSIFY} (neighbours per template point whose "
+                          f"midpoints join the ICP template), got {densify!r}")
+    if densify and not refine:
+        raise ConfigError("densify changes the ICP template of the re-scoring: it needs refine > 0 (or leave "
+                          "densify='auto')")
+    return int(densify)
