@@ -1,8 +1,8 @@
 """Category-level post-processing of one network run: ICP re-scoring, calibration into the category frame, hypothesis
-selection (then ``polish`` more ICP iterations on the chosen pose; ICP's template is the predicted canonical shape,
-with ``densify`` the midpoints between its neighbouring points added, ``equipose.runtime.template``; or the up prior's, ``equipose.runtime.upright``,
+selection (then ``polish`` more ICP iterations on the chosen pose; or the up prior's, ``equipose.runtime.upright``,
 with "up" given or read off a complete cloud's resting face, ``equipose.runtime.rest_facet``), exact SO(3), metres,
-and the geometric stages.
+and the geometric stages. ICP's template is the predicted canonical shape, with ``densify`` plus the midpoints between
+its neighbouring points (``equipose.runtime.template``).
 
 Convention: ``outputs`` are the 4 ONNX outputs of a batch (``equipose.runtime.session.OUTPUT_NAMES``), ``b`` the item;
 ``prep.model_points`` [N, 3] model units, centred camera frame; ``up`` None or a unit [3] camera-frame direction.

@@ -3,11 +3,14 @@
 The network predicts its canonical shape as a few hundred points (256 for the edge presets) and the observation has
 as many. ICP pairs each observed point with its nearest template point, so a sparse template quantises the pairs:
 an observed point between two template points is pulled toward one of them, and the fitted pose carries that
-quantisation. Midpoints to each point's ``k`` nearest neighbours fill the surface between them (256 points → ≈ 700
-at ``k`` = 4) at a modest ICP cost (cKDTree queries grow with the log of the template size).
+quantisation. Midpoints to each point's ``k`` nearest neighbours fill the surface between them (a chair's 256
+points → 582, 862, 1,146, 1,449 at ``k`` = 2, 4, 6, 8) at a modest ICP cost (cKDTree queries grow with the log of
+the template size).
 
-Measured (2026-11-25, chair-partial v0.17 file, 500 test views, its refined calibration unchanged): median
-rotation error 3.99° / 5° accuracy 0.58 → 3.89° / 0.61 (k = 4), 3.93° / 0.61 (6), 4.07° / 0.61 (8), 4.08° / 0.58 (2).
+Measured (2026-11-25, chair-partial v0.17 network, 500 test views): median rotation error / 5° accuracy 3.99° / 0.580
+→ 3.90° / 0.604 with k = 4 (re-calibrated), 3.83° / 0.612 with k = 4 and 30 polish iterations (the v0.19 file); the
+per-view gain is about a tenth of a degree, on training views too. Not on every model: sofa-partial 6.85° → 7.24°,
+airplane-partial 2.59° → 2.69° (docs/results/models/README.md, v0.19), so it is chosen per file.
 
 Convention: model units, the frame of the template given (the SDK's learned frame); order: the original points
 first, then the midpoints.

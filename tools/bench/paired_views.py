@@ -1,0 +1,57 @@
+"""Paired comparison of SDK model files on the same rendered partial views (test or training split).
+
+Usage: python tools/bench/paired_views.py --category chair --split train --n 400 A.onnx B.onnx [C.onnx ...]
+
+Each file runs through ``PoseEstimator(file).predict_points`` (its own settings) on the same N evenly spaced views of
+the render cache (``data_cache``; rendered on first use). Prints, per file: median rotation error (°), 5° accuracy and
+flip rate (> 150°); and, against the first file, the mean per-view change of the error over the views where both are
+below 20° (± its standard error) and the share of those views that got better. Symmetric categories are not handled
+(plain rotation angle): use it for chair, sofa, car, airplane, laptop.
+"""
+from __future__ import annotations
+
+import argparse
+
+import numpy as np
+
+from equipose import PoseEstimator
+from equipose.train.data import RenderedPartial
+from equipose.train.modelnet import default_data_root
+from equipose.train.render_cache import ensure_cache
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("models", nargs="+")
+    ap.add_argument("--category", required=True)
+    ap.add_argument("--split", choices=["train", "test"], default="test")
+    ap.add_argument("--n", type=int, default=0, help="views (evenly spaced; 0 = all)")
+    ap.add_argument("--views", type=int, default=None, help="rendered views per instance (default: 10 train, 5 test)")
+    args = ap.parse_args()
+    views = args.views or (10 if args.split == "train" else 5)
+    ds = RenderedPartial(ensure_cache(default_data_root(), args.category, args.split, views=views), 256, train=False)
+    total = len(ds.offsets) - 1
+    idx = np.arange(total) if not args.n else np.linspace(0, total - 1, args.n).round().astype(int)
+    samples = [ds.raw(int(i)) for i in idx]
+    errors = []
+    for path in args.models:
+        est = PoseEstimator(path, threads=1)
+        e = []
+        for s in samples:
+            r = est.predict_points(s["points_m"])
+            cos = np.clip((np.trace(r.rotation.T @ s["rotation"]) - 1.0) / 2.0, -1.0, 1.0)
+            e.append(np.degrees(np.arccos(cos)))
+        e = np.asarray(e)                                                       # [V] degrees
+        errors.append(e)
+        line = (f"{path}: median {np.median(e):.3f}°  5° {np.mean(e < 5):.3f}  flips {np.mean(e > 150):.3f}"
+                f"  n {len(e)}")
+        if len(errors) > 1:
+            both = (errors[0] < 20) & (e < 20)
+            d = (e - errors[0])[both]
+            se = d.std(ddof=1) / np.sqrt(len(d))
+            line += f"  | vs first, {both.sum()} views < 20°: {d.mean():+.3f} ± {se:.3f}°, better {np.mean(d < 0):.3f}"
+        print(line, flush=True)
+
+
+if __name__ == "__main__":
+    main()
