@@ -20,7 +20,7 @@ from scipy.spatial import cKDTree
 from equipose.core.errors import ConfigError, InvalidPointsError
 from equipose.core.metadata import MAX_POLISH
 
-__all__ = ["kabsch", "icp_multi", "refine_hypotheses", "resolve_polish", "MAX_POLISH"]
+__all__ = ["kabsch", "icp_multi", "refine_hypotheses", "resolve_polish", "resolve_rescoring_option", "MAX_POLISH"]
 
 
 def kabsch(src: np.ndarray, dst: np.ndarray) -> tuple:
@@ -129,14 +129,22 @@ def refine_hypotheses(points: np.ndarray, template: np.ndarray, rotations: np.nd
     return R_out, t_out, s_out
 
 
+def resolve_rescoring_option(name: str, value, refine_calibration: dict | None, refine: int, maximum: int,
+                             meaning: str) -> int:
+    """A ``PoseEstimator`` integer option of the ICP re-scoring (``polish``, ``densify``) → its value. "auto": the
+    file's ``refine_calibration[name]`` when its re-scoring runs (``refine`` > 0), else 0; an explicit value must be an
+    int in 0..``maximum``, and non-zero only with the re-scoring. ``meaning`` words the ``ConfigError``."""
+    if isinstance(value, str) and value == "auto":
+        return int((refine_calibration or {}).get(name, 0)) if refine else 0
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or not 0 <= value <= maximum:
+        raise ConfigError(f"{name} must be 'auto' or an int in 0..{maximum} ({meaning}), got {value!r}")
+    if value and not refine:
+        raise ConfigError(f"{name} is part of the ICP re-scoring ({meaning}): it needs refine > 0 (or leave "
+                          f"{name}='auto')")
+    return int(value)
+
+
 def resolve_polish(polish, refine_calibration: dict | None, refine: int) -> int:
-    """``PoseEstimator(polish=...)`` → ICP iterations on the selected pose after re-scoring (0 = none). "auto": the
-    file's ``refine_calibration["polish"]`` when its re-scoring runs (``refine`` > 0), else 0."""
-    if isinstance(polish, str) and polish == "auto":
-        return int((refine_calibration or {}).get("polish", 0)) if refine else 0
-    if isinstance(polish, bool) or not isinstance(polish, (int, np.integer)) or not 0 <= polish <= MAX_POLISH:
-        raise ConfigError(f"polish must be 'auto' or an int in 0..{MAX_POLISH} (ICP iterations on the selected pose "
-                          f"after re-scoring), got {polish!r}")
-    if polish and not refine:
-        raise ConfigError("polish refines the pose chosen by ICP re-scoring: it needs refine > 0 (or leave polish='auto')")
-    return int(polish)
+    """``PoseEstimator(polish=...)`` → ICP iterations on the selected pose after re-scoring (0 = none)."""
+    return resolve_rescoring_option("polish", polish, refine_calibration, refine, MAX_POLISH,
+                                    "ICP iterations on the selected pose after re-scoring")

@@ -22,6 +22,7 @@ from scipy.spatial import cKDTree
 
 from equipose.core.errors import ConfigError, InvalidPointsError
 from equipose.core.metadata import MAX_DENSIFY
+from equipose.runtime.refine import resolve_rescoring_option
 
 __all__ = ["densify_template", "resolve_densify", "MAX_DENSIFY"]
 
@@ -47,13 +48,6 @@ def densify_template(points: np.ndarray, k: int) -> np.ndarray:
 
 def resolve_densify(densify, refine_calibration: dict | None, refine: int) -> int:
     """``PoseEstimator(densify=...)`` → neighbours per template point for the ICP template (0 = the predicted shape as
-    it is). "auto": the file's ``refine_calibration["densify"]`` when its re-scoring runs (``refine`` > 0), else 0."""
-    if isinstance(densify, str) and densify == "auto":
-        return int((refine_calibration or {}).get("densify", 0)) if refine else 0
-    if isinstance(densify, bool) or not isinstance(densify, (int, np.integer)) or not 0 <= densify <= MAX_DENSIFY:
-        raise ConfigError(f"densify must be 'auto' or an int in 0..{MAX_DENSIFY} (neighbours per template point whose "
-                          f"midpoints join the ICP template), got {densify!r}")
-    if densify and not refine:
-        raise ConfigError("densify changes the ICP template of the re-scoring: it needs refine > 0 (or leave "
-                          "densify='auto')")
-    return int(densify)
+    it is)."""
+    return resolve_rescoring_option("densify", densify, refine_calibration, refine, MAX_DENSIFY,
+                                    "neighbours per template point whose midpoints join the ICP template")
