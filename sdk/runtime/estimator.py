@@ -21,7 +21,7 @@ from equipose.core.presets import ModelConfig, total_macs
 from equipose.runtime.copies import copy_batch, copy_rotations
 from equipose.runtime.instance import INSTANCE_ITERS, build_instance_model, finish_instance
 from equipose.runtime.postprocess import finish_category
-from equipose.runtime.refine import resolve_polish
+from equipose.runtime.refine import resolve_polish, resolve_refine
 from equipose.runtime.template import resolve_densify
 from equipose.runtime.result import FrameError, PoseResult
 from equipose.runtime.upright import check_up, per_object_up, resolve_plane_up
@@ -100,14 +100,8 @@ class PoseEstimator:
         self.calibration_rotation = np.asarray(self.metadata["calibration_rotation"], np.float64)     # [3, 3]
         self.calibration_translation = np.asarray(self.metadata["calibration_translation"], np.float64)  # [3]
         rcal = self.metadata["refine_calibration"]                              # None, or parsed and checked
-        refine = (rcal["k"] if rcal else 0) if refine == "auto" else refine
-        refine_iters = (rcal["iters"] if rcal else 10) if refine_iters is None else refine_iters
-        if isinstance(refine, bool) or not isinstance(refine, int) or refine < 0 or not isinstance(refine_iters, int) \
-                or refine_iters < 1:
-            raise ConfigError(f"refine must be 'auto' or an int ≥ 0 and refine_iters an int ≥ 1, got {refine!r}, "
-                              f"{refine_iters!r}")
-        self.refine, self.refine_iters, self.polish = refine, refine_iters, resolve_polish(polish, rcal, refine)
-        self.densify = resolve_densify(densify, rcal, refine)
+        self.refine, self.refine_iters = refine, refine_iters = resolve_refine(refine, refine_iters, rcal)
+        self.polish, self.densify = resolve_polish(polish, rcal, refine), resolve_densify(densify, rcal, refine)
         if refine and rcal:                                                     # calibrated for refined poses
             self.calibration_rotation, self.calibration_translation = rcal["rotation"], rcal["translation"]
         copies = (rcal["copies"] if (refine and rcal and model_points is None) else 1) if copies == "auto" else copies

@@ -20,7 +20,7 @@ from scipy.spatial import cKDTree
 from equipose.core.errors import ConfigError, InvalidPointsError
 from equipose.core.metadata import MAX_POLISH
 
-__all__ = ["kabsch", "icp_multi", "refine_hypotheses", "resolve_polish", "resolve_rescoring_option", "MAX_POLISH"]
+__all__ = ["kabsch", "icp_multi", "refine_hypotheses", "resolve_polish", "resolve_refine", "resolve_rescoring_option", "MAX_POLISH"]
 
 
 def kabsch(src: np.ndarray, dst: np.ndarray) -> tuple:
@@ -127,6 +127,19 @@ def refine_hypotheses(points: np.ndarray, template: np.ndarray, rotations: np.nd
     if len(rest):
         s_out[rest] = res.max() + 1e-9 + (s[rest] - s[rest].min())
     return R_out, t_out, s_out
+
+
+def resolve_refine(refine, refine_iters, refine_calibration: dict | None) -> tuple:
+    """``PoseEstimator(refine=..., refine_iters=...)`` → (hypotheses re-scored, ICP iterations each). "auto" / None:
+    the file's ``refine_calibration`` k and iters (none: 0 and 10)."""
+    rcal = refine_calibration
+    refine = (rcal["k"] if rcal else 0) if isinstance(refine, str) and refine == "auto" else refine
+    refine_iters = (rcal["iters"] if rcal else 10) if refine_iters is None else refine_iters
+    if isinstance(refine, bool) or not isinstance(refine, int) or refine < 0 or not isinstance(refine_iters, int) \
+            or refine_iters < 1:
+        raise ConfigError(f"refine must be 'auto' or an int ≥ 0 and refine_iters an int ≥ 1, got {refine!r}, "
+                          f"{refine_iters!r}")
+    return refine, refine_iters
 
 
 def resolve_rescoring_option(name: str, value, refine_calibration: dict | None, refine: int, maximum: int,
