@@ -73,8 +73,8 @@ def _run_model(args) -> int:
     cal["inputs"] = f"{len(idx)} category-frame {category}/{mode} training samples"
     update_metadata(args.model, refine_calibration=cal)
     print(f"refined calibration (k={args.refine}, {args.refine_iters} ICP iterations, {args.copies} copies, "
-          f"visibility {args.visibility}, polish {args.polish}, densify {args.densify}) from {cal['n']} inputs: rotation "
-          f"inliers {cal['inlier_fraction']:.2f}, translation inliers {cal['translation_inlier_fraction']:.2f} "
+          f"visibility {args.visibility}, polish {args.polish}, densify {args.densify}) from {cal['n']} inputs: "
+          f"rotation inliers {cal['inlier_fraction']:.2f}, translation inliers {cal['translation_inlier_fraction']:.2f} "
           f"→ {args.model} (metadata refine_calibration)")
     return 0
 
