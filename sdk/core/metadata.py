@@ -212,10 +212,9 @@ def decode_metadata(props: dict, source: str = "model") -> dict:
             raise ValueError(f"copies must be in 1..{MAX_COPIES}, got {out['refine_calibration']['copies']}")
         if rc and rc.get("visibility") is not None and not -3 <= float(rc["visibility"]) <= 6:
             raise ValueError(f"visibility must be an exponent in -3..6, got {rc['visibility']}")
-        if rc and not 0 <= out["refine_calibration"]["polish"] <= MAX_POLISH:
-            raise ValueError(f"polish must be in 0..{MAX_POLISH} ICP iterations, got {out['refine_calibration']['polish']}")
-        if rc and not 0 <= out["refine_calibration"]["densify"] <= MAX_DENSIFY:
-            raise ValueError(f"densify must be in 0..{MAX_DENSIFY} neighbours, got {out['refine_calibration']['densify']}")
+        for key, top, unit in (("polish", MAX_POLISH, "ICP iterations"), ("densify", MAX_DENSIFY, "neighbours")):
+            if rc and not 0 <= out["refine_calibration"][key] <= top:
+                raise ValueError(f"{key} must be in 0..{top} {unit}, got {out['refine_calibration'][key]}")
     except (ValueError, KeyError, TypeError) as e:
         raise MetadataError(f"{source}: malformed refine_calibration metadata ({e}); re-run 'equipose calibrate "
                             "--model'") from None

@@ -20,7 +20,8 @@ from scipy.spatial import cKDTree
 from equipose.core.errors import ConfigError, InvalidPointsError
 from equipose.core.metadata import MAX_POLISH
 
-__all__ = ["kabsch", "icp_multi", "refine_hypotheses", "resolve_polish", "resolve_refine", "resolve_rescoring_option", "MAX_POLISH"]
+__all__ = ["kabsch", "icp_multi", "refine_hypotheses", "resolve_polish", "resolve_refine", "resolve_rescoring_option",
+           "MAX_POLISH"]
 
 
 def kabsch(src: np.ndarray, dst: np.ndarray) -> tuple:

@@ -15,6 +15,7 @@ import argparse
 import numpy as np
 
 from equipose import PoseEstimator
+from equipose.core.geometry import rotation_angle_deg
 from equipose.train.data import RenderedPartial
 from equipose.train.modelnet import default_data_root
 from equipose.train.render_cache import ensure_cache
@@ -36,12 +37,8 @@ def main() -> None:
     errors = []
     for path in args.models:
         est = PoseEstimator(path, threads=1)
-        e = []
-        for s in samples:
-            r = est.predict_points(s["points_m"])
-            cos = np.clip((np.trace(r.rotation.T @ s["rotation"]) - 1.0) / 2.0, -1.0, 1.0)
-            e.append(np.degrees(np.arccos(cos)))
-        e = np.asarray(e)                                                       # [V] degrees
+        e = np.array([float(rotation_angle_deg(est.predict_points(s["points_m"]).rotation, s["rotation"]))
+                      for s in samples])                                        # [V] degrees
         errors.append(e)
         line = (f"{path}: median {np.median(e):.3f}°  5° {np.mean(e < 5):.3f}  flips {np.mean(e > 150):.3f}"
                 f"  n {len(e)}")
