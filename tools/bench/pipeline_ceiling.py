@@ -25,6 +25,7 @@ Measured (2026-11-25, 500 test views, v0.19 files; median ° / 5° accuracy):
 | chair-partial (600 training) | 3.45 / 0.670 | 3.18 / 0.722 | 198: 162 / 24 / 12 |
 | sofa-partial (500 test) | 6.45 / 0.420 | 3.92 / 0.616 | 290: 187 / 52 / 51 |
 | airplane-partial (500 test) | 2.59 / 0.690 | 2.68 / 0.726 | 155: 122 / 14 / 19 |
+| car-partial (500 test) | 6.34 / 0.424 | 3.37 / 0.682 | 288: 146 / 65 / 77 |
 
 Chair is template-bound: four of five misses would miss from the true pose too. The same fit onto the view's true
 complete cloud (1,024 points, ground-truth frame) settles at 0.51° / 1.00 (250 test views), so ICP on one view is
