@@ -21,6 +21,17 @@ from equipose.train.modelnet import default_data_root
 from equipose.train.render_cache import ensure_cache
 
 
+def rendered_views(category: str, split: str, n: int = 0, views: int | None = None) -> tuple:
+    """``n`` evenly spaced rendered partial views of a ModelNet split (0 = all) → (indices [V] into the render cache,
+    ``RenderedPartial.raw`` dicts: ``points_m`` [P, 3] camera frame, metres; ``rotation``, ``translation_m``). ``views`` per instance: default 10
+    for train, 5 for test (the render caches the evaluation uses)."""
+    views = views or (10 if split == "train" else 5)
+    ds = RenderedPartial(ensure_cache(default_data_root(), category, split, views=views), 256, train=False)
+    total = len(ds.offsets) - 1
+    idx = np.arange(total) if not n else np.linspace(0, total - 1, n).round().astype(int)
+    return idx, [ds.raw(int(i)) for i in idx]
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("models", nargs="+")
@@ -29,11 +40,7 @@ def main() -> None:
     ap.add_argument("--n", type=int, default=0, help="views (evenly spaced; 0 = all)")
     ap.add_argument("--views", type=int, default=None, help="rendered views per instance (default: 10 train, 5 test)")
     args = ap.parse_args()
-    views = args.views or (10 if args.split == "train" else 5)
-    ds = RenderedPartial(ensure_cache(default_data_root(), args.category, args.split, views=views), 256, train=False)
-    total = len(ds.offsets) - 1
-    idx = np.arange(total) if not args.n else np.linspace(0, total - 1, args.n).round().astype(int)
-    samples = [ds.raw(int(i)) for i in idx]
+    _, samples = rendered_views(args.category, args.split, args.n, args.views)
     errors = []
     for path in args.models:
         est = PoseEstimator(path, threads=1)

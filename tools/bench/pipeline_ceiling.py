@@ -43,9 +43,7 @@ from equipose import PoseEstimator
 from equipose.core.geometry import farthest_point_order, rotation_angle_deg
 from equipose.runtime.refine import icp_multi
 from equipose.runtime.template import densify_template
-from equipose.train.data import RenderedPartial
-from equipose.train.modelnet import default_data_root
-from equipose.train.render_cache import ensure_cache
+from paired_views import rendered_views     # tools/bench: the same evenly spaced rendered views
 
 OBSERVED_POINTS = 2048      # the view's points used in the ceiling fit (farthest-point sample), as the SDK's polish
 
@@ -73,15 +71,11 @@ def main() -> None:
     ap.add_argument("--iters", type=int, default=0, help="ICP iterations of the ceiling fit (0: refine_iters + polish)")
     ap.add_argument("--json", help="write the per-view errors here")
     args = ap.parse_args()
-    views = 10 if args.split == "train" else 5
-    ds = RenderedPartial(ensure_cache(default_data_root(), args.category, args.split, views=views), 256, train=False)
-    total = len(ds.offsets) - 1
-    idx = np.arange(total) if not args.n else np.linspace(0, total - 1, args.n).round().astype(int)
+    idx, samples = rendered_views(args.category, args.split, args.n)
     est = PoseEstimator(args.model, threads=1)
     iters = args.iters or max(1, est.refine_iters + est.polish)
     sdk, ceil = [], []
-    for i in idx:
-        s = ds.raw(int(i))
+    for s in samples:
         r = est.predict_points(s["points_m"])
         sdk.append(float(rotation_angle_deg(r.rotation, s["rotation"])))
         ceil.append(ceiling_error(est, r, s["points_m"], s["rotation"], s["translation_m"], iters))
