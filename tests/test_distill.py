@@ -10,7 +10,7 @@ from equipose.core import icosahedral  # noqa: E402
 from equipose.cli import main  # noqa: E402
 from equipose.errors import ConfigError  # noqa: E402
 from equipose.train.checkpoint import load_checkpoint  # noqa: E402
-from equipose.train.distill import teacher_targets  # noqa: E402
+from equipose.train.distill import canonical_clouds, teacher_targets  # noqa: E402
 from equipose.train.losses import distillation_loss, icp_drift, reachable_targets  # noqa: E402
 
 
@@ -246,5 +246,48 @@ def test_distillation_term_weights_are_checked():
         TrainConfig.from_sources(mode="partial", teacher="t.pt", drift_weight=1.0, drift_iters=0)
     with pytest.raises(ConfigError, match="weights ≥ 0"):
         TrainConfig.from_sources(mode="partial", teacher="t.pt", view_weight=-1.0)
+    with pytest.raises(ConfigError, match="give --teacher"):
+        TrainConfig.from_sources(mode="partial", cloud_weight=1.0)
+    with pytest.raises(ConfigError, match="weights ≥ 0"):
+        TrainConfig.from_sources(mode="partial", teacher="t.pt", cloud_weight=-0.5)
     cfg = TrainConfig.from_sources(mode="partial", teacher="t.pt", view_weight=3.0, drift_weight=10.0)
     assert (cfg.view_weight, cfg.drift_weight, cfg.drift_iters) == (3.0, 10.0, 10)
+
+
+def test_cloud_term_is_the_chamfer_to_the_canonical_cloud():
+    g = torch.Generator().manual_seed(8)
+    S = torch.rand(2, 64, 3, generator=g) - 0.5                                   # student = teacher shapes [B, M, 3]
+    C = torch.cat([S, S[:, :16] + 0.01], dim=1)                                   # clouds [B, 80, 3] on that shape
+    R_t = torch.tensor(Rotation.random(2, random_state=9).as_matrix(), dtype=torch.float32)
+    t_t = torch.randn(2, 3, generator=g)
+    out = _outputs(R_t[:, None].expand(2, 60, 3, 3), t_t[:, None].expand(2, 60, 3), S)
+    base, parts0 = distillation_loss(out, S, R_t, t_t, ANCHORS)
+    on, parts = distillation_loss(out, S, R_t, t_t, ANCHORS, clouds=C, cloud_weight=2.0)
+    assert "cloud" not in parts0 and parts["cloud"] < 1e-3
+    far, parts = distillation_loss(out, S, R_t, t_t, ANCHORS, clouds=C * 1.5, cloud_weight=2.0)
+    assert parts["cloud"] > 1e-2 and far.item() - base.item() == pytest.approx(2.0 * parts["cloud"], rel=1e-4)
+    with pytest.raises(ConfigError, match="canonical clouds"):
+        distillation_loss(out, S, R_t, t_t, ANCHORS, cloud_weight=1.0)
+
+
+def test_canonical_clouds_undo_the_teacher_pose_and_the_render_pose():
+    rng = np.random.default_rng(10)
+    scale, I, per = 2.0, 3, 2
+    clouds = [rng.normal(size=(40, 3)) for _ in range(I)]                          # metres, object frame
+    R_i = Rotation.random(I, random_state=11).as_matrix()                          # teacher: canonical → object
+    t_i = rng.normal(size=(I, 3)) * 0.1                                            # model units
+    inst = np.repeat(np.arange(I), per)                                            # [V]
+    R_view = Rotation.random(I * per, random_state=12).as_matrix()                 # render poses [V, 3, 3]
+    t_view = rng.normal(size=(I * per, 3))                                         # metres
+
+    class Views:
+        R, t = R_view, t_view
+
+    Views.scale = scale
+    targets = {"instance": inst, "rotations": R_view @ R_i[inst],
+               "translations": np.einsum("vij,vj->vi", R_view, t_i[inst]) + t_view / scale}
+    got = canonical_clouds(clouds, targets, Views, points=40)                      # [I, 40, 3]
+    for i in range(I):
+        want = (clouds[i] / scale - t_i[i]) @ R_i[i]                               # R_iᵀ (c / scale − t_i)
+        d = np.linalg.norm(got[i][:, None] - want[None], axis=-1).min(1)           # same points, FPS order
+        assert got.shape == (I, 40, 3) and d.max() < 1e-5

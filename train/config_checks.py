@@ -17,9 +17,9 @@ def check_config(cfg) -> None:
         raise ConfigError("--teacher-priors / --teacher-flip apply to the teacher's poses: give --teacher too")
     if cfg.batch_size < 1 or cfg.steps < 0:
         raise ConfigError("batch_size must be ≥ 1 and steps ≥ 0")
-    if (cfg.view_weight or cfg.drift_weight) and not cfg.teacher:
-        raise ConfigError("--view-weight / --drift-weight weigh distillation terms: give --teacher too")
-    if cfg.drift_iters < 1 or min(cfg.view_weight, cfg.drift_weight, cfg.shape_weight) < 0:
+    if (cfg.view_weight or cfg.drift_weight or cfg.cloud_weight) and not cfg.teacher:
+        raise ConfigError("--view-weight / --drift-weight / --cloud-weight weigh distillation terms: give --teacher too")
+    if cfg.drift_iters < 1 or min(cfg.view_weight, cfg.drift_weight, cfg.shape_weight, cfg.cloud_weight) < 0:
         raise ConfigError(f"drift_iters must be ≥ 1 and the loss weights ≥ 0, got drift_iters {cfg.drift_iters}, "
                           f"view_weight {cfg.view_weight}, drift_weight {cfg.drift_weight}, "
-                          f"shape_weight {cfg.shape_weight}")
+                          f"shape_weight {cfg.shape_weight}, cloud_weight {cfg.cloud_weight}")

@@ -27,7 +27,7 @@ from equipose.core.errors import ConfigError
 
 from equipose.train.checkpoint import model_from_checkpoint
 
-__all__ = ["complete_clouds", "teacher_targets", "distillation_loss"]
+__all__ = ["complete_clouds", "teacher_targets", "canonical_clouds", "distillation_loss"]
 
 
 def complete_clouds(root, category: str, split: str, limit: int | None = None) -> list:
@@ -37,6 +37,31 @@ def complete_clouds(root, category: str, split: str, limit: int | None = None) -
         return [np.asarray(c, np.float64) for _, _, c in tabletop_sources(root, category, split)[:limit]]
     from equipose.train.render_cache import modelnet_shapes
     return [np.asarray(c, np.float64) for _, _, c in modelnet_shapes(root, category, split, "npy1024", limit)]
+
+
+def canonical_clouds(clouds: list, targets: dict, dataset, points: int = 512) -> np.ndarray:
+    """Each instance's complete cloud in the teacher's canonical frame → [I, ``points``, 3] float32, model units.
+
+    The teacher's pose of instance i (canonical → the render cache's object frame, model units) is read off its first
+    view's targets: R_i = R_viewᵀ R_v, t_i = R_viewᵀ (t_v − t_view / scale); the cloud (metres, that object frame)
+    goes back through it, y = R_iᵀ (c / scale − t_i), and keeps ``points`` farthest points. No pose labels: the
+    render pose only undoes the known placement of the view, as in ``teacher_targets``."""
+    from equipose.core.geometry import farthest_point_order
+    inst = np.asarray(targets["instance"])                                            # [V]
+    R_v = np.asarray(targets["rotations"], np.float64)                                # [V, 3, 3]
+    t_v = np.asarray(targets["translations"], np.float64)                             # [V, 3]
+    R_view = np.asarray(dataset.R, np.float64)                                        # [V, 3, 3]
+    t_view = np.asarray(dataset.t, np.float64) / dataset.scale                        # [V, 3] model units
+    out = np.empty((int(inst.max()) + 1, points, 3), np.float32)
+    for i in range(len(out)):
+        v = int(np.flatnonzero(inst == i)[0])
+        R_i = R_view[v].T @ R_v[v]                                                    # [3, 3]
+        t_i = R_view[v].T @ (t_v[v] - t_view[v])                                      # [3]
+        c = np.asarray(clouds[i], np.float64) / dataset.scale                         # [P, 3] model units
+        c = c[farthest_point_order(c, min(points, len(c)), start=0)]
+        y = (c - t_i) @ R_i                                                           # [K, 3] rows: R_iᵀ (c − t_i)
+        out[i] = y if len(y) == points else y[np.resize(np.arange(len(y)), points)]
+    return out
 
 
 def _flip_templates(model, scale: float) -> dict:

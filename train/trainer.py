@@ -32,7 +32,7 @@ from equipose.train.modelnet import MODELNET_SCALE, category_symmetry, default_d
 from equipose.train.inference import calibrate_model, predict_torch
 from equipose.train.calibration import apply_calibration
 from equipose.eval.metrics import rotation_errors
-from equipose.train.distill import complete_clouds, teacher_targets
+from equipose.train.distill import canonical_clouds, complete_clouds, teacher_targets
 from equipose.train.losses import axial_symmetry_loss, chamfer_min_of_60_loss, distillation_loss
 from equipose.train.model import EquiPoseNet
 
@@ -72,6 +72,7 @@ class TrainConfig:
     select_weight: float = 0.0            # distillation: weight of the hypothesis-selection cross-entropy
     shape_weight: float = 1.0             # distillation: weight of the canonical-shape chamfer to the teacher's shape
     view_weight: float = 0.0              # distillation: weight of the view's fit to that shape at the teacher pose
+    cloud_weight: float = 0.0             # distillation: weight of the chamfer to the complete cloud in the teacher frame
     drift_weight: float = 0.0             # distillation: weight of how far ICP of the view onto it leaves that pose
     drift_iters: int = 10                 # distillation: ICP iterations of that drift (losses.icp_drift)
     rotate_augment: bool = False          # distillation: views turned by random rotations (augment.rotate_views)
@@ -221,6 +222,8 @@ def train(cfg: TrainConfig, resume: bool = False, log=print) -> pathlib.Path:
         tt = teacher_targets(cfg.teacher, train_ds, clouds, refine=cfg.teacher_refine, cache_file=out / "teacher.npz",
                              frame_priors=cfg.teacher_priors, flip_model=cfg.teacher_flip,
                              log=log if rank == 0 else (lambda *_: None))
+        if cfg.cloud_weight > 0:
+            tt = {**tt, "clouds": canonical_clouds(clouds, tt, train_ds)}                  # [I, K, 3]
         targets = {k: torch.from_numpy(np.asarray(v, np.int64 if k == "instance" else np.float32)).to(device)
                    for k, v in tt.items()}
     rng = np.random.default_rng([cfg.seed, rank, step])
@@ -263,7 +266,9 @@ def train(cfg: TrainConfig, resume: bool = False, log=print) -> pathlib.Path:
             loss, _ = distillation_loss(net(x, return_aux=True), targets["shapes"][targets["instance"][v]], R_t, t_t,
                                         model.anchors, symmetric=symmetry != "none", select_weight=cfg.select_weight,
                                         shape_weight=cfg.shape_weight, points=x, view_weight=cfg.view_weight,
-                                        drift_weight=cfg.drift_weight, drift_iters=cfg.drift_iters)
+                                        drift_weight=cfg.drift_weight, drift_iters=cfg.drift_iters,
+                                        clouds=targets["clouds"][targets["instance"][v]] if cfg.cloud_weight else None,
+                                        cloud_weight=cfg.cloud_weight)
         opt.zero_grad(set_to_none=True)
         loss.backward()
         opt.step()

@@ -55,6 +55,9 @@ def add_arguments(p) -> None:
     p.add_argument("--view-weight", dest="view_weight", type=float,
                    help="distillation: weight of the observed points' distance to the student's canonical shape at "
                    "the teacher's pose (default 0; where the view lies is what ICP re-scoring fits)")
+    p.add_argument("--cloud-weight", dest="cloud_weight", type=float,
+                   help="distillation: weight of the chamfer between the student's canonical shape and the complete "
+                   "training cloud carried into the teacher's frame by the teacher's pose (default 0)")
     p.add_argument("--drift-weight", dest="drift_weight", type=float,
                    help="distillation: weight of how far --drift-iters ICP iterations of the view onto the student's "
                    "canonical shape move from the teacher's pose (default 0; asks that pose to be where the SDK's "
