@@ -222,8 +222,7 @@ def train(cfg: TrainConfig, resume: bool = False, log=print) -> pathlib.Path:
         tt = teacher_targets(cfg.teacher, train_ds, clouds, refine=cfg.teacher_refine, cache_file=out / "teacher.npz",
                              frame_priors=cfg.teacher_priors, flip_model=cfg.teacher_flip,
                              log=log if rank == 0 else (lambda *_: None))
-        if cfg.cloud_weight > 0:
-            tt = {**tt, "clouds": canonical_clouds(clouds, tt, train_ds)}                  # [I, K, 3]
+        tt = {**tt, "clouds": canonical_clouds(clouds, tt, train_ds)} if cfg.cloud_weight > 0 else tt   # + [I, K, 3]
         targets = {k: torch.from_numpy(np.asarray(v, np.int64 if k == "instance" else np.float32)).to(device)
                    for k, v in tt.items()}
     rng = np.random.default_rng([cfg.seed, rank, step])
@@ -266,9 +265,8 @@ def train(cfg: TrainConfig, resume: bool = False, log=print) -> pathlib.Path:
             loss, _ = distillation_loss(net(x, return_aux=True), targets["shapes"][targets["instance"][v]], R_t, t_t,
                                         model.anchors, symmetric=symmetry != "none", select_weight=cfg.select_weight,
                                         shape_weight=cfg.shape_weight, points=x, view_weight=cfg.view_weight,
-                                        drift_weight=cfg.drift_weight, drift_iters=cfg.drift_iters,
-                                        clouds=targets["clouds"][targets["instance"][v]] if cfg.cloud_weight else None,
-                                        cloud_weight=cfg.cloud_weight)
+                                        drift_weight=cfg.drift_weight, drift_iters=cfg.drift_iters, cloud_weight=cfg.cloud_weight,
+                                        clouds=targets["clouds"][targets["instance"][v]] if cfg.cloud_weight else None)
         opt.zero_grad(set_to_none=True)
         loss.backward()
         opt.step()
