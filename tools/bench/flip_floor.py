@@ -22,7 +22,7 @@ Measured (2026-11-25, 500 test views each, files of v0.21):
 | category | turned better | within 5 % | within 10 % | true pose stable | SDK flips: on turned-better views / elsewhere |
 |---|---|---|---|---|---|
 | car | 0.168 | 0.192 | 0.236 | 0.982 | 0.234: 0.066 / 0.168 |
-| sofa | 0.086 | 0.094 | 0.114 | 0.998 | 0.186: 0.038 / 0.148 |
+| sofa | 0.086 | 0.094 | 0.114 | 0.998 | 0.198: 0.032 / 0.166 |
 | chair | 0.026 | 0.028 | 0.030 | 1.000 | 0.048: 0.008 / 0.040 |
 | airplane | 0.116 | 0.136 | 0.152 | 0.998 | 0.114: 0.034 / 0.080 |
 
@@ -30,7 +30,7 @@ Car: a half turn of the car's own complete shape fits the view better than its t
 front/back turn about z, 0.132), so a decision by fit alone, even with the perfect template, flips more often than
 0.1. The SDK does not decide by fit alone (the network's hypotheses come first): it flips on 0.066 of those 0.168
 car views, and airplane-partial on 0.034 of its 0.116. Most SDK flips are on views the exact shape settles (car 0.168,
-sofa 0.148): there the student's reconstruction, not the view, is what fails.
+sofa 0.166): there the student's reconstruction, not the view, is what fails.
 """
 from __future__ import annotations
 
