@@ -43,10 +43,9 @@ from equipose.core.geometry import farthest_point_order, rotation_angle_deg
 from equipose.runtime.hypotheses import HALF_TURNS
 from equipose.runtime.refine import icp_multi
 from equipose.runtime.visibility import view_residuals
-from equipose.train.data import RenderedPartial
 from equipose.train.distill import complete_clouds
 from equipose.train.modelnet import default_data_root
-from equipose.train.render_cache import ensure_cache
+from paired_views import rendered_views     # tools/bench: the same evenly spaced rendered views
 
 OBSERVED_POINTS = 1024
 ICP_ITERS = 30
@@ -83,20 +82,15 @@ def main() -> None:
     ap.add_argument("--model", help="also run this SDK model on the views and split its flips")
     ap.add_argument("--json", help="write the per-view residuals and errors here")
     args = ap.parse_args()
-    root = default_data_root()
-    ds = RenderedPartial(ensure_cache(root, args.category, args.split, views=10 if args.split == "train" else 5),
-                         256, train=False)
-    total = len(ds.offsets) - 1
-    idx = np.arange(total) if not args.n else np.linspace(0, total - 1, args.n).round().astype(int)
-    clouds = complete_clouds(root, args.category, args.split)
+    idx, samples = rendered_views(args.category, args.split, args.n)
+    clouds = complete_clouds(default_data_root(), args.category, args.split)
     est = None
     if args.model:
         from equipose import PoseEstimator
         est = PoseEstimator(args.model, threads=1)
     res, err, sdk = [], [], []
-    for i in idx:
-        s = ds.raw(int(i))
-        r, e = turn_fits(s["points_m"], clouds[int(ds.instance[i])], s["rotation"], s["translation_m"])
+    for s in samples:
+        r, e = turn_fits(s["points_m"], clouds[s["instance"]], s["rotation"], s["translation_m"])
         res.append(r); err.append(e)
         if est is not None:
             sdk.append(float(rotation_angle_deg(est.predict_points(s["points_m"]).rotation, s["rotation"])))
