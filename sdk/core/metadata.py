@@ -34,10 +34,15 @@ symmetry axis from the observed normals (cans and tins, ``equipose.runtime.cylin
 about those axes (``equipose.runtime.flip``); ``rest_facet`` JSON {"tolerance_deg": float}: complete-shape models read
 "up" off the cloud's resting hull face (``equipose.runtime.rest_facet``); ``frame_priors`` JSON {"steps": ["rest", "mirror",
 "footprint"] (some, in order), "mirror_axis": "x"|"y"|"z", "max_deg": float}: complete-shape models turn the pose onto
-the cloud's mirror plane and footprint rectangle (``equipose.runtime.frame_priors``).
+the cloud's mirror plane and footprint rectangle (``equipose.runtime.frame_priors``); ``turn_classifier`` JSON
+{"axes": ["x", "y", "z"], "margin": float, "ambiguous_margin": float, "point": [layer, ...], "head": [layer, ...],
+"source": {...}} with each layer {"shape": [out, in], "weight": base64 float32 little-endian (out·in),
+"bias": base64 float32 (out)}: a PointNet scorer of the view's canonical points that settles half turns about those
+axes (``equipose.runtime.turn_classifier``).
 """
 from __future__ import annotations
 
+import base64
 import json
 import math
 
@@ -47,7 +52,7 @@ from equipose.core import icosahedral
 from equipose.core.errors import MetadataError, ModelVersionError
 
 __all__ = ["FORMAT_VERSION", "REQUIRED_KEYS", "FRAME_PRIOR_STEPS", "MAX_COPIES", "MAX_POLISH", "MAX_DENSIFY",
-           "encode_metadata", "decode_metadata"]
+           "encode_metadata", "decode_metadata", "encode_turn_classifier"]
 
 FORMAT_VERSION = 1
 FRAME_PRIOR_STEPS = ("rest", "mirror", "footprint")       # equipose.runtime.frame_priors
@@ -113,6 +118,54 @@ def _flip_templates(text, source: str):
     if not axes or any(a not in ("x", "y", "z") for a in axes):
         raise MetadataError(f"{source}: flip_templates axes must be some of x, y, z, got {axes}")
     return {"points": pts, "axes": axes}
+
+
+def encode_turn_classifier(point: list, head: list, axes, margin: float, ambiguous_margin: float,
+                           source: dict | None = None) -> str:
+    """``turn_classifier`` metadata value from layer lists [(W [out, in], b [out]), ...] (float32, ``x Wᵀ + b``)."""
+    def layer(W, b):
+        W, b = np.asarray(W, "<f4"), np.asarray(b, "<f4")
+        return {"shape": list(W.shape), "weight": base64.b64encode(W.tobytes()).decode("ascii"),
+                "bias": base64.b64encode(b.tobytes()).decode("ascii")}
+    return json.dumps({"axes": list(axes), "margin": float(margin), "ambiguous_margin": float(ambiguous_margin),
+                       "point": [layer(W, b) for W, b in point], "head": [layer(W, b) for W, b in head],
+                       "source": source or {}})
+
+
+def _turn_classifier(text, source: str):
+    """``turn_classifier`` metadata → {"axes", "margin", "ambiguous_margin", "weights": {"point", "head"}} or None."""
+    if not text:
+        return None
+    try:
+        d = json.loads(text)
+        axes = [str(a) for a in d["axes"]]
+        weights = {}
+        for part in ("point", "head"):
+            layers = []
+            for L in d[part]:
+                o, i = (int(v) for v in L["shape"])
+                W = np.frombuffer(base64.b64decode(L["weight"]), "<f4").reshape(o, i)
+                b = np.frombuffer(base64.b64decode(L["bias"]), "<f4").reshape(o)
+                layers.append((W.astype(np.float32), b.astype(np.float32)))
+            weights[part] = layers
+        margin, amb = float(d["margin"]), float(d["ambiguous_margin"])
+    except (ValueError, KeyError, TypeError) as e:
+        raise MetadataError(f"{source}: malformed turn_classifier metadata ({e}); re-add it "
+                            "(python -m equipose.train.turn_classifier)") from None
+    if not axes or any(a not in ("x", "y", "z") for a in axes):
+        raise MetadataError(f"{source}: turn_classifier axes must be some of x, y, z, got {axes}")
+    pt, hd = weights["point"], weights["head"]
+    chain = pt + hd
+    if not pt or not hd or pt[0][0].shape[1] != 3 or hd[-1][0].shape[0] != 1 or \
+            hd[0][0].shape[1] != 2 * pt[-1][0].shape[0] or \
+            any(chain[k + 1][0].shape[1] != chain[k][0].shape[0] for k in range(len(chain) - 1) if k != len(pt) - 1):
+        raise MetadataError(f"{source}: turn_classifier layer shapes do not chain (point 3 → F, head 2F → 1): "
+                            f"{[W.shape for W, _ in chain]}")
+    if not all(np.all(np.isfinite(W)) and np.all(np.isfinite(b)) for W, b in chain) or \
+            not (math.isfinite(margin) and math.isfinite(amb)):
+        raise MetadataError(f"{source}: turn_classifier weights or margins are not finite")
+    return {"axes": axes, "margin": margin, "ambiguous_margin": amb, "weights": weights,
+            "source": d.get("source", {})}
 
 
 def _rest_facet(text, source: str):
@@ -225,6 +278,7 @@ def decode_metadata(props: dict, source: str = "model") -> dict:
     out["shape_prior"] = _check_shape_prior(props["shape_prior"], source) if props.get("shape_prior") else None
     out["flip_templates"] = _flip_templates(props.get("flip_templates"), source)
     out["rest_facet"] = _rest_facet(props.get("rest_facet"), source)
+    out["turn_classifier"] = _turn_classifier(props.get("turn_classifier"), source)
     out["frame_priors"] = _frame_priors(props.get("frame_priors"), source)
     _check_symmetry(out["symmetry"])
     if not (math.isfinite(out["scale"]) and out["scale"] > 0):

@@ -45,6 +45,9 @@ class PoseResult:
         flip_margin: models with front/back templates (metadata ``flip_templates``): relative gap between the
             template fits of the pose and of its half turn about up (small = front/back unsure; sets ``ambiguous``
             below 0.1), else None.
+        turn_margin: models with a turn classifier (metadata ``turn_classifier``, ``equipose.runtime.turn_classifier``):
+            the pose's lead in logits over its best-scoring half turn (small = unsure; sets ``ambiguous`` below the
+            file's ``ambiguous_margin``), else None.
         frame_priors: models with metadata ``frame_priors`` (``equipose.runtime.frame_priors``): degrees each step
             turned the pose ({"mirror": 0.8, "footprint": -1.2}; None for a step that left it), else None.
         agreement: with rotated input copies (``PoseEstimator(copies=K)``, K > 1): the fraction of copies whose best
@@ -78,6 +81,7 @@ class PoseResult:
     up: np.ndarray | None = None
     up_source: str | None = None
     flip_margin: float | None = None
+    turn_margin: float | None = None
     frame_priors: dict | None = None
     agreement: float | None = None
 
@@ -154,6 +158,8 @@ class PoseResult:
             d["agreement"] = round(float(self.agreement), 4)
         if self.flip_margin is not None:
             d["flip_margin"] = round(float(self.flip_margin), 6)
+        if self.turn_margin is not None:
+            d["turn_margin"] = round(float(self.turn_margin), 4)
         if self.handle_visible is not None:
             d["handle_visible"] = bool(self.handle_visible)
             d["handle_points"] = int(self.handle_points)

@@ -16,6 +16,8 @@
 #   to each canonical point's N nearest neighbours, equipose.runtime.template; default 0)  FLIP_TEACHER=model FLIP_AXES=z
 #   FLIP_POOL=24 (front/back templates from that complete-shape model, the 6 of FLIP_POOL reconstructions that agree
 #   on the frame, equipose.export.flip_templates, added before evaluation)
+#   TURN_STATE=train/state/NAME TURN_AXES=x,y,z (partial views: the turn classifier trained on that lane's views
+#   posed by its teacher, equipose.train.turn_classifier, added after the flip templates; the int8 file copies it)
 #   REST_FACET=deg (complete clouds: the rest-facet stage with that tolerance, metadata rest_facet)
 #   FRAME_PRIORS=auto|none|steps (complete clouds: mirror plane / footprint steps, chosen on training clouds when
 #   auto; equipose.export.frame_priors, metadata frame_priors)
@@ -46,6 +48,14 @@ u('sdk/models/$F.onnx', rest_facet={'tolerance_deg': float('$REST_FACET')})"
   if [ -n "${FLIP_TEACHER:-}" ]; then
     ${PY:-.venv/bin/python} -m equipose.export.flip_templates --model "sdk/models/$F.onnx" --teacher "$FLIP_TEACHER" \
         --category "$CAT" --axes "${FLIP_AXES:-z}" --pool "${FLIP_POOL:-24}"
+  fi
+  if [ -n "${TURN_STATE:-}" ]; then
+    if [ "$F" = "$NAME" ]; then
+      ${PY:-.venv/bin/python} -m equipose.train.turn_classifier --model "sdk/models/$F.onnx" --state "$TURN_STATE" \
+          --axes "${TURN_AXES:-x,y,z}"
+    else                        # the int8 file carries the fp32 file's classifier
+      ${PY:-.venv/bin/python} -m equipose.train.turn_classifier --model "sdk/models/$F.onnx" --copy-from "sdk/models/$NAME.onnx"
+    fi
   fi
   if [ -n "${FRAME_PRIORS:-}" ]; then
     ${PY:-.venv/bin/python} -m equipose.export.frame_priors --model "sdk/models/$F.onnx" --category "$CAT" \

@@ -1,0 +1,116 @@
+"""The turn classifier stage (``equipose.runtime.turn_classifier``): numpy scoring matches the torch network it was
+trained as, a pose the scorer finds turned is turned back, the metadata is validated, and a model carrying one
+reports ``turn_margin``."""
+import json
+import shutil
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from equipose import PoseEstimator, errors
+from equipose.core.geometry import rotation_angle_deg
+from equipose.core.metadata import encode_turn_classifier
+from equipose.runtime.hypotheses import HALF_TURNS
+from equipose.runtime.result import PoseResult
+from equipose.runtime.turn_classifier import finish_turn, score_sets, turned_sets
+
+
+def _mean_x_scorer(axes=("z",), margin=0.0, ambiguous_margin=0.05):
+    """A hand-set scorer whose logit is the mean canonical x of the set: relu(x), relu(−x) pooled, their difference."""
+    point = [(np.array([[1.0, 0, 0], [-1.0, 0, 0]], np.float32), np.zeros(2, np.float32))]
+    head = [(np.array([[0, 0, 1.0, -1.0]], np.float32), np.zeros(1, np.float32))]        # mean x+ − mean x−
+    meta = decode_metadata_value(encode_turn_classifier(point, head, axes, margin, ambiguous_margin))
+    return meta
+
+
+def decode_metadata_value(text):
+    from equipose.core.metadata import _turn_classifier
+    return _turn_classifier(text, "test")
+
+
+def _result(R, t):
+    shape = np.zeros((4, 3))
+    return PoseResult(rotation=R, translation=np.asarray(t, float), score=0.0, confidence=0.0, ambiguous=False,
+                      canonical_shape=shape, canonical_shape_object=shape, hypothesis_index=0)
+
+
+def test_turned_sets_are_the_half_turned_canonical_points(rng):
+    R = Rotation.random(random_state=1).as_matrix()
+    t = rng.normal(size=3)
+    x = rng.normal(size=(300, 3))
+    sets = turned_sets(x, R, t, axes=("x", "y", "z"), points=300)
+    assert sets.shape == (4, 300, 3)
+    for k, a in enumerate("xyz", 1):                                              # the set of pose R·H
+        np.testing.assert_allclose(sets[k], (x - t) @ (R @ HALF_TURNS[a]), atol=1e-5)
+
+
+def test_numpy_scores_match_the_torch_network(rng):
+    torch = pytest.importorskip("torch")
+    from equipose.train.turn_classifier import PointSetScore
+    torch.manual_seed(0)
+    net = PointSetScore(width=8).eval()
+    sets = rng.normal(size=(5, 4, 64, 3)).astype(np.float32)
+    with torch.no_grad():
+        expected = net(torch.from_numpy(sets)).numpy()
+    point, head = net.layers()
+    tc = decode_metadata_value(encode_turn_classifier(point, head, "xyz", 0.0, 1.0))
+    np.testing.assert_allclose(score_sets(tc["weights"], sets), expected, rtol=1e-4, atol=1e-5)
+
+
+def test_finish_turn_turns_back_a_pose_the_scorer_finds_turned(rng):
+    tc = _mean_x_scorer(axes=("z",))
+    R_true = Rotation.from_euler("zyx", [30, 20, -10], degrees=True).as_matrix()
+    y = rng.normal(size=(256, 3)) + [0.5, 0, 0]                                   # canonical points, mean x > 0
+    x = y @ R_true.T
+    res = _result(R_true @ HALF_TURNS["z"], np.zeros(3))                          # the turned answer
+    finish_turn(tc, res, x, np.zeros(3))
+    assert rotation_angle_deg(res.rotation, R_true) < 1e-4
+    assert res.turn_margin > 0.5 and not res.ambiguous
+    finish_turn(tc, res, x, np.zeros(3))                                          # a right pose stays
+    assert rotation_angle_deg(res.rotation, R_true) < 1e-4
+
+
+def test_finish_turn_keeps_the_pose_within_the_margin_and_flags_a_near_tie(rng):
+    tc = _mean_x_scorer(axes=("z",), margin=10.0, ambiguous_margin=0.5)
+    y = rng.normal(size=(256, 3)) + [0.1, 0, 0]
+    res = _result(HALF_TURNS["z"], np.zeros(3))
+    finish_turn(tc, res, y, np.zeros(3))
+    np.testing.assert_allclose(res.rotation, HALF_TURNS["z"])                     # the turn did not win by 10
+    assert res.turn_margin < 0 and res.ambiguous
+
+
+@pytest.mark.parametrize("change, message", [
+    (lambda d: d.update(axes=["w"]), "axes"),
+    (lambda d: d["head"][0].update(shape=[1, 6]), "malformed|chain"),
+    (lambda d: d.update(margin="nan"), "finite"),
+    (lambda d: d.pop("point"), "malformed"),
+])
+def test_malformed_turn_classifier_metadata_is_refused(change, message):
+    point = [(np.eye(3, dtype=np.float32)[:2], np.zeros(2, np.float32))]
+    head = [(np.ones((1, 4), np.float32), np.zeros(1, np.float32))]
+    d = json.loads(encode_turn_classifier(point, head, ["z"], 0.0, 1.0))
+    change(d)
+    with pytest.raises(errors.MetadataError, match=message):
+        decode_metadata_value(json.dumps(d))
+
+
+def test_model_with_a_turn_classifier(tiny_model, tmp_path, rng):
+    from equipose.export.onnx_export import update_metadata
+    path = tmp_path / "with_turns.onnx"
+    shutil.copy(tiny_model, path)
+    point = [(rng.normal(size=(8, 3)).astype(np.float32), np.zeros(8, np.float32))]
+    head = [(rng.normal(size=(1, 16)).astype(np.float32), np.zeros(1, np.float32))]
+    update_metadata(path, turn_classifier=encode_turn_classifier(point, head, ["x", "y", "z"], 0.0, 0.1))
+    est = PoseEstimator(path, threads=1)
+    assert est.metadata["turn_classifier"]["axes"] == ["x", "y", "z"]
+    pts = rng.normal(size=(400, 3)) * [0.05, 0.03, 0.02] + [0, 0, 0.8]
+    res = est.predict_points(pts)
+    assert res.turn_margin is not None and res.turn_margin >= 0                   # the kept pose leads its turns
+    assert "turn_margin" in res.to_dict()
+    plain = PoseEstimator(tiny_model, threads=1).predict_points(pts)
+    turned = rotation_angle_deg(res.rotation, plain.rotation)
+    assert turned < 1e-4 or turned > 179.0                                        # itself or a half turn of it
+    up = plain.rotation[:, 2]
+    res_up = est.predict_points(pts, up=up)                                       # the up prior: turns about up only
+    assert res_up.turn_margin is not None

@@ -1,0 +1,196 @@
+"""Train the turn classifier of a partial-view model (``equipose.runtime.turn_classifier``) without pose labels, and
+store it in the model file (metadata ``turn_classifier``).
+
+Data: the student's own rendered training views (``train/state/<name>``'s config: category, views) and, for each,
+the pose its complete-shape teacher gives the instance's complete cloud (``equipose.train.distill.teacher_targets``,
+with the lane's frame priors and flip templates; cached in the folder's ``teacher.npz``), carried into the category
+frame by the teacher's calibration. No ground-truth pose is read. Each view enters as the SDK's model input
+(``equipose.preprocess.prepare_points``: N FPS points, centred, model units) carried into the category frame by that
+pose with a small random error (``noise_deg`` per axis, ``noise_t`` model units), and by its half turns about
+``axes``; a PointNet scores the sets and is trained so that the teacher-posed one scores highest (softmax over the
+sets).
+
+Usage:
+    python -m equipose.train.turn_classifier --model sdk/models/car-partial.onnx --state train/state/car-partial \\
+        [--axes x,y,z] [--steps 2500] [--width 64] [--noise-deg 2] [--margin 0] [--ambiguous-margin 1] [--out F.onnx]
+    python -m equipose.train.turn_classifier --model sdk/models/car-partial.int8.onnx \
+        --copy-from sdk/models/car-partial.onnx          # the same classifier into another file
+
+Convention: rotations category → camera; translations model units in the centred camera frame of the model input.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import pathlib
+import shutil
+import sys
+import time
+
+import numpy as np
+import torch
+from scipy.spatial.transform import Rotation
+
+from equipose.core.metadata import decode_metadata, encode_turn_classifier
+from equipose.preprocess import prepare_points
+from equipose.runtime.hypotheses import HALF_TURNS, apply_calibration
+from equipose.runtime.turn_classifier import turned_sets
+
+__all__ = ["PointSetScore", "teacher_poses", "training_inputs", "train_scorer", "add_to_model"]
+
+
+class PointSetScore(torch.nn.Module):
+    """Shared point MLP 3 → w → 2w → 4w (ReLU), max- and mean-pooled, head 8w → 2w → 1: a logit per point set
+    [..., n, 3] → [...]. The layer layout is what ``equipose.runtime.turn_classifier.score_sets`` runs in numpy."""
+
+    def __init__(self, width: int = 64, dropout: float = 0.3):
+        super().__init__()
+        w = int(width)
+        self.point = torch.nn.ModuleList([torch.nn.Linear(3, w), torch.nn.Linear(w, 2 * w), torch.nn.Linear(2 * w, 4 * w)])
+        self.head = torch.nn.ModuleList([torch.nn.Linear(8 * w, 2 * w), torch.nn.Linear(2 * w, 1)])
+        self.dropout = torch.nn.Dropout(dropout)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        for layer in self.point:
+            x = torch.relu(layer(x))                                                   # [..., n, F]
+        g = torch.cat([x.max(-2).values, x.mean(-2)], -1)                              # [..., 2F]
+        return self.head[1](self.dropout(torch.relu(self.head[0](g)))).squeeze(-1)     # [...]
+
+    def layers(self) -> tuple:
+        """(point layers, head layers) as [(W [out, in], b [out]) float32 numpy]."""
+        def arr(mods):
+            return [(m.weight.detach().numpy().astype(np.float32), m.bias.detach().numpy().astype(np.float32))
+                    for m in mods]
+        return arr(self.point), arr(self.head)
+
+
+def teacher_poses(state_dir, log=print) -> tuple:
+    """The student lane's rendered training views and the teacher's pose of each in the category frame.
+
+    Returns (``RenderedPartial`` dataset, R [V, 3, 3] category → camera, t [V, 3] model units, camera frame)."""
+    from equipose.train.checkpoint import load_checkpoint
+    from equipose.train.data import RenderedPartial
+    from equipose.train.distill import complete_clouds, teacher_targets
+    from equipose.train.modelnet import default_data_root
+    from equipose.train.render_cache import ensure_cache
+    from equipose.train.trainer import TrainConfig
+    folder = pathlib.Path(state_dir)
+    cfg = TrainConfig.from_sources(str(folder / "config.json"))
+    if not cfg.teacher:
+        raise ValueError(f"{folder}: the turn classifier learns from a teacher; this lane has none (config teacher)")
+    repo = folder.resolve().parents[2]
+    teacher = cfg.teacher if pathlib.Path(cfg.teacher).is_absolute() else str(repo / cfg.teacher)
+    root = cfg.data_root or str(default_data_root())
+    ds = RenderedPartial(ensure_cache(root, cfg.category, "train", views=cfg.views), 256, train=False)
+    clouds = complete_clouds(root, cfg.category, "train", cfg.train_limit)
+    tt = teacher_targets(teacher, ds, clouds, refine=cfg.teacher_refine, cache_file=folder / "teacher.npz",
+                         frame_priors=cfg.teacher_priors, flip_model=cfg.teacher_flip, log=log)
+    cal = load_checkpoint(teacher)["calibration"]
+    R, t = apply_calibration(tt["rotations"], tt["translations"], cal["rotation"], cal["translation"])
+    return ds, R, t
+
+
+def training_inputs(ds, R, t, num_points: int, scale: float) -> tuple:
+    """(model inputs [V, N, 3] float32, translations [V, 3] in each input's centred frame, model units)."""
+    X = np.empty((len(R), num_points, 3), np.float32)
+    tc = np.empty((len(R), 3))
+    for i in range(len(R)):
+        prep = prepare_points(ds.raw(i)["points_m"], num_points, scale)
+        X[i] = prep.model_points
+        tc[i] = t[i] * ds.scale / scale - prep.centre_m / scale                       # teacher units → model units
+    return X, tc
+
+
+def train_scorer(X, R, t, axes=("x", "y", "z"), steps: int = 2500, batch: int = 32, width: int = 64,
+                 noise_deg: float = 2.0, noise_t: float = 0.01, lr: float = 1e-3, seed: int = 0,
+                 log=print) -> PointSetScore:
+    """Train a ``PointSetScore`` on inputs [V, N, 3] with poses R [V, 3, 3], t [V, 3] (see the module)."""
+    rng = np.random.default_rng(seed)
+    torch.manual_seed(seed)
+    net = PointSetScore(width)
+    opt = torch.optim.Adam(net.parameters(), lr, weight_decay=1e-4)
+    sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, steps)
+    t0 = time.perf_counter()
+    for step in range(steps):
+        net.train()
+        idx = rng.integers(0, len(X), batch)
+        dR = Rotation.from_rotvec(rng.normal(0, np.radians(noise_deg), (batch, 3))).as_matrix()   # [B, 3, 3]
+        dt = rng.normal(0, noise_t, (batch, 3))
+        sets = np.stack([turned_sets(X[i], R[i] @ dR[b], t[i] + dt[b], axes) for b, i in enumerate(idx)])
+        logits = net(torch.from_numpy(sets))                                          # [B, 1 + A]
+        loss = torch.nn.functional.cross_entropy(logits, torch.zeros(batch, dtype=torch.long))
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+        sched.step()
+        if (step + 1) % 500 == 0 or step + 1 == steps:
+            log(f"turn classifier step {step + 1}/{steps}: loss {loss.item():.4f} ({time.perf_counter() - t0:.0f} s)")
+    net.eval()
+    return net
+
+
+def add_to_model(model_path, net: PointSetScore, axes, margin: float, ambiguous_margin: float, source: dict,
+                 out=None) -> pathlib.Path:
+    """Write the scorer into ``model_path``'s metadata (or into a copy at ``out``)."""
+    from equipose.export.onnx_export import update_metadata
+    path = pathlib.Path(model_path)
+    if out is not None and pathlib.Path(out) != path:
+        shutil.copyfile(path, out)
+        path = pathlib.Path(out)
+    point, head = net.layers()
+    value = encode_turn_classifier(point, head, axes, margin, ambiguous_margin, source)
+    return update_metadata(path, turn_classifier=value)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m equipose.train.turn_classifier", description=__doc__.splitlines()[0])
+    ap.add_argument("--model", required=True, help="the partial-view .onnx file the classifier is added to")
+    ap.add_argument("--state", help="its training-state folder (train/state/NAME: config, teacher)")
+    ap.add_argument("--copy-from", help="instead of training: copy the classifier of this model file (e.g. fp32 → int8)")
+    ap.add_argument("--axes", default="x,y,z")
+    ap.add_argument("--steps", type=int, default=2500)
+    ap.add_argument("--width", type=int, default=64)
+    ap.add_argument("--noise-deg", type=float, default=2.0)
+    ap.add_argument("--margin", type=float, default=0.0, help="logits a turn must win by to replace the pose")
+    ap.add_argument("--ambiguous-margin", type=float, default=1.0, help="lead below which the result is ambiguous")
+    ap.add_argument("--out", help="write a copy here instead of changing --model")
+    ap.add_argument("--threads", type=int, default=1)
+    a = ap.parse_args(argv)
+    if a.copy_from:
+        from equipose.export.onnx_export import update_metadata
+        import onnx
+        props = {p.key: p.value for p in onnx.load(a.copy_from, load_external_data=False).metadata_props}
+        if not props.get("turn_classifier"):
+            raise SystemExit(f"--copy-from {a.copy_from}: that file has no turn classifier")
+        target = a.model
+        if a.out:
+            shutil.copyfile(a.model, a.out)
+            target = a.out
+        update_metadata(target, turn_classifier=props["turn_classifier"])
+        print(f"turn classifier of {a.copy_from} → {target}")
+        return 0
+    if not a.state:
+        raise SystemExit("--state is required (the lane whose views and teacher train the classifier)")
+    torch.set_num_threads(a.threads)
+    axes = [s.strip() for s in a.axes.split(",") if s.strip()]
+    if not axes or any(x not in HALF_TURNS for x in axes):
+        raise SystemExit(f"--axes: some of x, y, z, got {a.axes!r}")
+    import onnx
+    meta = decode_metadata({p.key: p.value for p in onnx.load(a.model, load_external_data=False).metadata_props},
+                           source=a.model)
+    if not meta["partial"]:
+        raise SystemExit(f"{a.model}: the turn classifier is for partial-view models")
+    ds, R, t = teacher_poses(a.state)
+    X, tc = training_inputs(ds, R, t, int(meta["num_points"]), float(meta["scale"]))
+    print(f"{len(X)} training views of {meta['category']} posed by the teacher", flush=True)
+    net = train_scorer(X, R, tc, axes, steps=a.steps, width=a.width, noise_deg=a.noise_deg)
+    source = {"state": str(a.state), "views": len(X), "steps": a.steps, "width": a.width, "noise_deg": a.noise_deg,
+              "labels": "teacher"}
+    path = add_to_model(a.model, net, axes, a.margin, a.ambiguous_margin, source, out=a.out)
+    print(f"turn classifier ({', '.join(axes)}; margin {a.margin}) → {path}")
+    print(json.dumps(source))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
