@@ -3,7 +3,7 @@
 # folder → refined calibration (ICP re-scoring of 5) → the stages ship_model.sh would add → SDK evaluation on the
 # test set: the plain network (before the stages) and the default pipeline.
 # Usage: tools/bench/quick_eval.sh RUN_DIR CATEGORY MODE [CALIB_NUM]
-#   EQ, SCALE, EXPORT_CATEGORY, REFINE_ITERS, COPIES, VISIBILITY, POLISH, DENSIFY, REST_FACET, FRAME_PRIORS, FLIP_TEACHER, FLIP_AXES, FLIP_POOL, TURN_STATE, TURN_AXES as in ship_model.sh;
+#   EQ, SCALE, EXPORT_CATEGORY, REFINE_ITERS, COPIES, VISIBILITY, POLISH, DENSIFY, REST_FACET, FRAME_PRIORS, FLIP_TEACHER, FLIP_AXES, FLIP_POOL, TURN_STATE, TURN_AXES, TURN_FROM as in ship_model.sh;
 #   KEEP=path.onnx keeps the evaluated file there.
 set -euo pipefail
 RUN=$1; CAT=$2; MODE=$3; NUM=${4:-512}
@@ -21,7 +21,9 @@ if [ -n "${FLIP_TEACHER:-}" ]; then
   $PY -m equipose.export.flip_templates --model "$M" --teacher "$FLIP_TEACHER" --category "$CAT" \
       --axes "${FLIP_AXES:-z}" --pool "${FLIP_POOL:-24}" > /dev/null
 fi
-if [ -n "${TURN_STATE:-}" ]; then
+if [ -n "${TURN_FROM:-}" ]; then
+  $PY -m equipose.train.turn_classifier --model "$M" --copy-from "$TURN_FROM" > /dev/null
+elif [ -n "${TURN_STATE:-}" ]; then
   $PY -m equipose.train.turn_classifier --model "$M" --state "$TURN_STATE" --axes "${TURN_AXES:-x,y,z}" > /dev/null
 fi
 if [ -n "${FRAME_PRIORS:-}" ]; then

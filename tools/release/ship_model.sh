@@ -18,6 +18,7 @@
 #   on the frame, equipose.export.flip_templates, added before evaluation)
 #   TURN_STATE=train/state/NAME TURN_AXES=x,y,z (partial views: the turn classifier trained on that lane's views
 #   posed by its teacher, equipose.train.turn_classifier, added after the flip templates; the int8 file copies it)
+#   TURN_FROM=file.onnx (copy that file's turn classifier instead of training one)
 #   REST_FACET=deg (complete clouds: the rest-facet stage with that tolerance, metadata rest_facet)
 #   FRAME_PRIORS=auto|none|steps (complete clouds: mirror plane / footprint steps, chosen on training clouds when
 #   auto; equipose.export.frame_priors, metadata frame_priors)
@@ -49,7 +50,9 @@ u('sdk/models/$F.onnx', rest_facet={'tolerance_deg': float('$REST_FACET')})"
     ${PY:-.venv/bin/python} -m equipose.export.flip_templates --model "sdk/models/$F.onnx" --teacher "$FLIP_TEACHER" \
         --category "$CAT" --axes "${FLIP_AXES:-z}" --pool "${FLIP_POOL:-24}"
   fi
-  if [ -n "${TURN_STATE:-}" ]; then
+  if [ -n "${TURN_FROM:-}" ]; then           # a classifier trained before (it does not depend on the network)
+    ${PY:-.venv/bin/python} -m equipose.train.turn_classifier --model "sdk/models/$F.onnx" --copy-from "$TURN_FROM"
+  elif [ -n "${TURN_STATE:-}" ]; then
     if [ "$F" = "$NAME" ]; then
       ${PY:-.venv/bin/python} -m equipose.train.turn_classifier --model "sdk/models/$F.onnx" --state "$TURN_STATE" \
           --axes "${TURN_AXES:-x,y,z}"
