@@ -37,6 +37,12 @@ Car: even at the exact pose, with ground-truth-trained features, front/back stay
 eight; on the shipped poses the same classifier takes the flip rate only from 0.31 to 0.28. Sofa: the flips are
 mostly upside-down turns (about x: 80 of 170, z: 68), decidable at the exact pose (95–97 %) but not from the
 student's poses (0.34 → 0.31): the student's pose error, not the view, is what limits sofa.
+
+With ``--classifier points`` (a PointNet on the canonicalised points instead of the occupancy grid; 2026-11-25,
+``--margin 0``): car (v0.21 file) decided at the exact pose on all four 0.878, against x / y / z 0.984 / 0.980 /
+0.884; on the shipped poses 4.86° / 0.508 / flip 0.234 → 4.53° / 0.532 / 0.198 (noise 0°), 0.214 (8.6°). Sofa
+(v0.22 file, which carries the label-free turn classifier, ``--noise-deg 0``): all four 0.936, x / y / z 0.956 /
+0.984 / 0.972; on the shipped poses 0.186 → 0.192.
 """
 from __future__ import annotations
 
