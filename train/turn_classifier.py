@@ -13,7 +13,7 @@ sets).
 Usage:
     python -m equipose.train.turn_classifier --model sdk/models/car-partial.onnx --state train/state/car-partial \\
         [--axes x,y,z] [--steps 2500] [--width 64] [--noise-deg 2] [--margin 0] [--ambiguous-margin 1] [--out F.onnx]
-    python -m equipose.train.turn_classifier --model sdk/models/car-partial.int8.onnx \
+    python -m equipose.train.turn_classifier --model sdk/models/car-partial.int8.onnx \\
         --copy-from sdk/models/car-partial.onnx          # the same classifier into another file
 
 Convention: rotations category → camera; translations model units in the centred camera frame of the model input.
@@ -129,17 +129,27 @@ def train_scorer(X, R, t, axes=("x", "y", "z"), steps: int = 2500, batch: int = 
     return net
 
 
-def add_to_model(model_path, net: PointSetScore, axes, margin: float, ambiguous_margin: float, source: dict,
-                 out=None) -> pathlib.Path:
-    """Write the scorer into ``model_path``'s metadata (or into a copy at ``out``)."""
+def _metadata_props(model_path) -> dict:
+    """The raw metadata strings of an ONNX file (key → value)."""
+    import onnx
+    return {p.key: p.value for p in onnx.load(str(model_path), load_external_data=False).metadata_props}
+
+
+def _write(model_path, value: str, out=None) -> pathlib.Path:
+    """Store a ``turn_classifier`` metadata value in ``model_path`` (or in a copy of it at ``out``)."""
     from equipose.export.onnx_export import update_metadata
     path = pathlib.Path(model_path)
     if out is not None and pathlib.Path(out) != path:
         shutil.copyfile(path, out)
         path = pathlib.Path(out)
-    point, head = net.layers()
-    value = encode_turn_classifier(point, head, axes, margin, ambiguous_margin, source)
     return update_metadata(path, turn_classifier=value)
+
+
+def add_to_model(model_path, net: PointSetScore, axes, margin: float, ambiguous_margin: float, source: dict,
+                 out=None) -> pathlib.Path:
+    """Write the scorer into ``model_path``'s metadata (or into a copy at ``out``)."""
+    point, head = net.layers()
+    return _write(model_path, encode_turn_classifier(point, head, axes, margin, ambiguous_margin, source), out)
 
 
 def main(argv=None) -> int:
@@ -157,17 +167,10 @@ def main(argv=None) -> int:
     ap.add_argument("--threads", type=int, default=1)
     a = ap.parse_args(argv)
     if a.copy_from:
-        from equipose.export.onnx_export import update_metadata
-        import onnx
-        props = {p.key: p.value for p in onnx.load(a.copy_from, load_external_data=False).metadata_props}
-        if not props.get("turn_classifier"):
+        value = _metadata_props(a.copy_from).get("turn_classifier")
+        if not value:
             raise SystemExit(f"--copy-from {a.copy_from}: that file has no turn classifier")
-        target = a.model
-        if a.out:
-            shutil.copyfile(a.model, a.out)
-            target = a.out
-        update_metadata(target, turn_classifier=props["turn_classifier"])
-        print(f"turn classifier of {a.copy_from} → {target}")
+        print(f"turn classifier of {a.copy_from} → {_write(a.model, value, a.out)}")
         return 0
     if not a.state:
         raise SystemExit("--state is required (the lane whose views and teacher train the classifier)")
@@ -175,9 +178,7 @@ def main(argv=None) -> int:
     axes = [s.strip() for s in a.axes.split(",") if s.strip()]
     if not axes or any(x not in HALF_TURNS for x in axes):
         raise SystemExit(f"--axes: some of x, y, z, got {a.axes!r}")
-    import onnx
-    meta = decode_metadata({p.key: p.value for p in onnx.load(a.model, load_external_data=False).metadata_props},
-                           source=a.model)
+    meta = decode_metadata(_metadata_props(a.model), source=a.model)
     if not meta["partial"]:
         raise SystemExit(f"{a.model}: the turn classifier is for partial-view models")
     ds, R, t = teacher_poses(a.state)

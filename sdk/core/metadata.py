@@ -156,9 +156,11 @@ def _turn_classifier(text, source: str):
         raise MetadataError(f"{source}: turn_classifier axes must be some of x, y, z, got {axes}")
     pt, hd = weights["point"], weights["head"]
     chain = pt + hd
-    if not pt or not hd or pt[0][0].shape[1] != 3 or hd[-1][0].shape[0] != 1 or \
-            hd[0][0].shape[1] != 2 * pt[-1][0].shape[0] or \
-            any(chain[k + 1][0].shape[1] != chain[k][0].shape[0] for k in range(len(chain) - 1) if k != len(pt) - 1):
+
+    def chains(layers, first_in: int) -> bool:                # each layer's input width is the previous one's output
+        return [W.shape[1] for W, _ in layers] == [first_in] + [W.shape[0] for W, _ in layers[:-1]]
+
+    if not pt or not hd or not chains(pt, 3) or not chains(hd, 2 * pt[-1][0].shape[0]) or hd[-1][0].shape[0] != 1:
         raise MetadataError(f"{source}: turn_classifier layer shapes do not chain (point 3 → F, head 2F → 1): "
                             f"{[W.shape for W, _ in chain]}")
     if not all(np.all(np.isfinite(W)) and np.all(np.isfinite(b)) for W, b in chain) or \

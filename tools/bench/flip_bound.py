@@ -104,27 +104,16 @@ def canonical_points(points_m, R, t_m, scale, rng=None) -> np.ndarray:
 
 
 def train_point_classifier(ds, noise_rad, steps=2500, batch=32, seed=0):
-    """A PointNet (shared MLP 3→64→128→256, max and mean pooled, MLP → 1) scoring each of the 4 point sets; trained
-    like the grid MLP (softmax over the 4, the set as truly posed the target) on freshly perturbed GT poses per step:
-    a classifier that sees the points themselves instead of 8×8×6 occupancy cells."""
+    """A PointNet (``equipose.train.turn_classifier.PointSetScore``: shared MLP 3→64→128→256, max and mean pooled,
+    MLP → 1) scoring each of the 4 point sets; trained like the grid MLP (softmax over the 4, the set as truly posed
+    the target) on freshly perturbed GT poses per step: a classifier that sees the points themselves instead of
+    8×8×6 occupancy cells."""
     import torch
     from scipy.spatial.transform import Rotation
+    from equipose.train.turn_classifier import PointSetScore
     rng = np.random.default_rng(seed)
     torch.manual_seed(seed)
     views = [ds.raw(i) for i in range(len(ds))]
-
-    class PointSetScore(torch.nn.Module):
-        def __init__(self, w=64):
-            super().__init__()
-            self.point = torch.nn.Sequential(torch.nn.Linear(3, w), torch.nn.ReLU(), torch.nn.Linear(w, 2 * w),
-                                             torch.nn.ReLU(), torch.nn.Linear(2 * w, 4 * w), torch.nn.ReLU())
-            self.head = torch.nn.Sequential(torch.nn.Linear(8 * w, 2 * w), torch.nn.ReLU(), torch.nn.Dropout(0.3),
-                                            torch.nn.Linear(2 * w, 1))
-
-        def forward(self, x):                                                     # [..., n, 3] → [...]
-            f = self.point(x)                                                     # [..., n, 4w]
-            return self.head(torch.cat([f.max(-2).values, f.mean(-2)], -1)).squeeze(-1)
-
     net = PointSetScore()
     opt = torch.optim.Adam(net.parameters(), 1e-3, weight_decay=1e-4)
     sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, steps)
