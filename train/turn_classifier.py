@@ -10,9 +10,16 @@ pose with a small random error (``noise_deg`` per axis, ``noise_t`` model units)
 ``axes``; a PointNet scores the sets and is trained so that the teacher-posed one scores highest (softmax over the
 sets).
 
+With ``--student-frac F`` a share F of each batch is the model's **own** poses of those views instead (the file run
+through the SDK, every stage but this one; cached in the folder's ``student_poses.npz``), each labelled with the
+turn of it that lies closest to the teacher's pose: the classifier then learns on the pose errors it meets at run
+time (an own pose off by 15° and turned is still to be turned back), not only on the teacher's clean ones. Own poses
+farther than ``--student-max-deg`` from every turn of the teacher's are left out. Still no ground-truth pose.
+
 Usage:
     python -m equipose.train.turn_classifier --model sdk/models/car-partial.onnx --state train/state/car-partial \\
         [--axes x,y,z] [--steps 2500] [--width 64] [--noise-deg 2] [--margin 0] [--ambiguous-margin 1] [--out F.onnx]
+        [--student-frac 0.5] [--student-max-deg 45]
     python -m equipose.train.turn_classifier --model sdk/models/car-partial.int8.onnx \\
         --copy-from sdk/models/car-partial.onnx          # the same classifier into another file
 
@@ -36,7 +43,8 @@ from equipose.preprocess import prepare_points
 from equipose.runtime.hypotheses import HALF_TURNS, apply_calibration
 from equipose.runtime.turn_classifier import turned_sets
 
-__all__ = ["PointSetScore", "teacher_poses", "training_inputs", "train_scorer", "add_to_model"]
+__all__ = ["PointSetScore", "teacher_poses", "student_poses", "turn_labels", "training_inputs", "train_scorer",
+           "add_to_model"]
 
 
 class PointSetScore(torch.nn.Module):
@@ -90,35 +98,97 @@ def teacher_poses(state_dir, log=print) -> tuple:
     return ds, R, t
 
 
+def student_poses(model_path, ds, cache_file=None, log=print) -> tuple:
+    """The model file's own poses of the training views, every stage but the turn classifier (the stage being
+    trained), as the SDK returns them: (R [V, 3, 3] category → camera, t [V, 3] metres, camera frame). Cached in
+    ``cache_file`` under a hash of the file without its ``turn_classifier`` metadata (one network, one cache)."""
+    import hashlib
+    import onnx
+    from equipose.runtime.estimator import PoseEstimator
+    proto = onnx.load(str(model_path), load_external_data=False)
+    keep = [p for p in proto.metadata_props if p.key != "turn_classifier"]
+    del proto.metadata_props[:]
+    proto.metadata_props.extend(keep)
+    key = hashlib.sha1(proto.SerializeToString()).hexdigest()[:16] + f"_{len(ds)}"
+    if cache_file is not None and pathlib.Path(cache_file).is_file():
+        z = np.load(cache_file)
+        if str(z["key"]) == key:
+            return z["rotations"], z["translations"]
+    est = PoseEstimator(str(model_path))
+    est.metadata["turn_classifier"] = None
+    Rs, ts, t0 = [], [], time.perf_counter()
+    for i in range(0, len(ds), 16):
+        for r in est.predict_points_batch([ds.raw(j)["points_m"] for j in range(i, min(len(ds), i + 16))]):
+            Rs.append(r.rotation)
+            ts.append(r.translation)
+        if (i // 16) % 50 == 0:
+            log(f"student poses: {len(Rs)}/{len(ds)} views ({time.perf_counter() - t0:.0f} s)")
+    R, t = np.stack(Rs), np.stack(ts)
+    if cache_file is not None:
+        pathlib.Path(cache_file).parent.mkdir(parents=True, exist_ok=True)
+        np.savez(cache_file, key=key, rotations=R, translations=t)
+    return R, t
+
+
+def turn_labels(R_student, R_teacher, axes) -> tuple:
+    """(label [V] int: which of the student pose and its half turns about ``axes`` (0 = itself, k = axes[k − 1]) is
+    closest to the teacher's pose, residual [V] degrees of that one)."""
+    from equipose.core.geometry import rotation_angle_deg
+    turns = [np.eye(3)] + [HALF_TURNS[a] for a in axes]
+    err = np.stack([rotation_angle_deg(R_teacher, R_student @ H) for H in turns], 1)       # [V, 1 + A]
+    return err.argmin(1), err.min(1)
+
+
 def training_inputs(ds, R, t, num_points: int, scale: float) -> tuple:
-    """(model inputs [V, N, 3] float32, translations [V, 3] in each input's centred frame, model units)."""
+    """(model inputs [V, N, 3] float32, translations [V, 3] in each input's centred frame, model units, input
+    centres [V, 3] metres)."""
     X = np.empty((len(R), num_points, 3), np.float32)
     tc = np.empty((len(R), 3))
+    centres = np.empty((len(R), 3))
     for i in range(len(R)):
         prep = prepare_points(ds.raw(i)["points_m"], num_points, scale)
         X[i] = prep.model_points
+        centres[i] = prep.centre_m
         tc[i] = t[i] * ds.scale / scale - prep.centre_m / scale                       # teacher units → model units
-    return X, tc
+    return X, tc, centres
 
 
 def train_scorer(X, R, t, axes=("x", "y", "z"), steps: int = 2500, batch: int = 32, width: int = 64,
                  noise_deg: float = 2.0, noise_t: float = 0.01, lr: float = 1e-3, seed: int = 0,
-                 log=print) -> PointSetScore:
-    """Train a ``PointSetScore`` on inputs [V, N, 3] with poses R [V, 3, 3], t [V, 3] (see the module)."""
+                 student=None, student_frac: float = 0.5, log=print) -> PointSetScore:
+    """Train a ``PointSetScore`` on inputs [V, N, 3] with poses R [V, 3, 3], t [V, 3] (see the module).
+
+    ``student``: optional (R_s [V, 3, 3], t_s [V, 3] model units, labels [V], usable [V] bool): the model's own poses
+    and which of their turns the teacher's pose is closest to; ``student_frac`` of each batch is drawn from them (the
+    error distribution the stage meets at run time), the rest from the teacher poses (target: the pose itself)."""
     rng = np.random.default_rng(seed)
     torch.manual_seed(seed)
     net = PointSetScore(width)
     opt = torch.optim.Adam(net.parameters(), lr, weight_decay=1e-4)
     sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, steps)
+    if student is not None:
+        R_s, t_s, lab, usable = student
+        pool = np.flatnonzero(usable)                                                  # views the stage can fix
+        if len(pool) == 0:
+            raise ValueError("student poses: no usable view (all too far from every turn of the teacher's pose)")
+        log(f"student poses: {len(pool)} usable views, turned {np.mean(lab[pool] != 0):.3f}")
     t0 = time.perf_counter()
     for step in range(steps):
         net.train()
-        idx = rng.integers(0, len(X), batch)
+        n_s = 0 if student is None else int(round(batch * student_frac))
+        idx = np.concatenate([rng.integers(0, len(X), batch - n_s),
+                              rng.choice(pool, n_s) if n_s else np.zeros(0, int)]).astype(int)
         dR = Rotation.from_rotvec(rng.normal(0, np.radians(noise_deg), (batch, 3))).as_matrix()   # [B, 3, 3]
         dt = rng.normal(0, noise_t, (batch, 3))
-        sets = np.stack([turned_sets(X[i], R[i] @ dR[b], t[i] + dt[b], axes) for b, i in enumerate(idx)])
-        logits = net(torch.from_numpy(sets))                                          # [B, 1 + A]
-        loss = torch.nn.functional.cross_entropy(logits, torch.zeros(batch, dtype=torch.long))
+        sets, target = [], np.zeros(batch, np.int64)
+        for b, i in enumerate(idx):
+            if b < batch - n_s:
+                sets.append(turned_sets(X[i], R[i] @ dR[b], t[i] + dt[b], axes))
+            else:
+                sets.append(turned_sets(X[i], R_s[i] @ dR[b], t_s[i] + dt[b], axes))
+                target[b] = lab[i]
+        logits = net(torch.from_numpy(np.stack(sets)))                                # [B, 1 + A]
+        loss = torch.nn.functional.cross_entropy(logits, torch.from_numpy(target))
         opt.zero_grad()
         loss.backward()
         opt.step()
@@ -163,6 +233,11 @@ def main(argv=None) -> int:
     ap.add_argument("--noise-deg", type=float, default=2.0)
     ap.add_argument("--margin", type=float, default=0.0, help="logits a turn must win by to replace the pose")
     ap.add_argument("--ambiguous-margin", type=float, default=1.0, help="lead below which the result is ambiguous")
+    ap.add_argument("--student-frac", type=float, default=0.0,
+                    help="share of each batch posed by the model's own poses of the training views (labelled by "
+                         "the teacher's turn); 0: teacher poses only")
+    ap.add_argument("--student-max-deg", type=float, default=45.0,
+                    help="own poses farther than this from every turn of the teacher's pose are left out")
     ap.add_argument("--out", help="write a copy here instead of changing --model")
     ap.add_argument("--threads", type=int, default=1)
     a = ap.parse_args(argv)
@@ -182,11 +257,22 @@ def main(argv=None) -> int:
     if not meta["partial"]:
         raise SystemExit(f"{a.model}: the turn classifier is for partial-view models")
     ds, R, t = teacher_poses(a.state)
-    X, tc = training_inputs(ds, R, t, int(meta["num_points"]), float(meta["scale"]))
+    scale = float(meta["scale"])
+    X, tc, centres = training_inputs(ds, R, t, int(meta["num_points"]), scale)
     print(f"{len(X)} training views of {meta['category']} posed by the teacher", flush=True)
-    net = train_scorer(X, R, tc, axes, steps=a.steps, width=a.width, noise_deg=a.noise_deg)
+    student = None
     source = {"state": str(a.state), "views": len(X), "steps": a.steps, "width": a.width, "noise_deg": a.noise_deg,
               "labels": "teacher"}
+    if a.student_frac > 0:
+        R_s, t_s = student_poses(a.model, ds, cache_file=pathlib.Path(a.state) / "student_poses.npz")
+        lab, resid = turn_labels(R_s, R, axes)
+        usable = resid <= a.student_max_deg
+        student = (R_s, (t_s - centres) / scale, lab, usable)
+        print(f"model's own poses of the training views: turned against the teacher {np.mean(lab != 0):.3f}, "
+              f"residual median {np.median(resid):.1f}°, usable (≤ {a.student_max_deg:g}°) {usable.mean():.3f}")
+        source.update(student_frac=a.student_frac, student_max_deg=a.student_max_deg)
+    net = train_scorer(X, R, tc, axes, steps=a.steps, width=a.width, noise_deg=a.noise_deg, student=student,
+                       student_frac=a.student_frac)
     path = add_to_model(a.model, net, axes, a.margin, a.ambiguous_margin, source, out=a.out)
     print(f"turn classifier ({', '.join(axes)}; margin {a.margin}) → {path}")
     print(json.dumps(source))

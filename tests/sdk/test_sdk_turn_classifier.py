@@ -114,3 +114,38 @@ def test_model_with_a_turn_classifier(tiny_model, tmp_path, rng):
     up = plain.rotation[:, 2]
     res_up = est.predict_points(pts, up=up)                                       # the up prior: turns about up only
     assert res_up.turn_margin is not None
+
+
+def test_turn_labels_pick_the_turn_closest_to_the_teachers_pose():
+    pytest.importorskip("torch")
+    from equipose.train.turn_classifier import turn_labels
+    R_t = Rotation.random(6, random_state=3).as_matrix()                           # [6, 3, 3] teacher poses
+    small = Rotation.from_rotvec([0.05, -0.03, 0.02]).as_matrix()                  # ≈ 3.5° of own error
+    turns = [np.eye(3), HALF_TURNS["x"], HALF_TURNS["y"], HALF_TURNS["z"], HALF_TURNS["y"], np.eye(3)]
+    R_s = np.stack([R_t[i] @ turns[i] @ small for i in range(6)])                  # own poses, turned against the teacher
+    lab, resid = turn_labels(R_s, R_t, ["x", "y", "z"])
+    assert lab.tolist() == [0, 1, 2, 3, 2, 0]
+    np.testing.assert_allclose(resid, np.degrees(np.linalg.norm([0.05, -0.03, 0.02])), atol=1e-4)
+    lab_z, resid_z = turn_labels(R_s, R_t, ["z"])                                  # only about z
+    assert lab_z[[0, 3, 5]].tolist() == [0, 1, 0]
+    assert np.all(resid_z[[1, 2, 4]] > 170)                                       # x / y turns: no z turn fixes them
+
+
+def test_scorer_trained_on_own_poses_learns_which_turn_is_true(rng):
+    torch = pytest.importorskip("torch")
+    from equipose.train.turn_classifier import train_scorer
+    torch.set_num_threads(1)
+    V = 64
+    base = rng.normal(size=(400, 3)) * [1.0, 0.4, 0.2]
+    base = base[base[:, 0] > -0.3 + 0.6 * rng.random(len(base))][:200]            # a shape thinner towards −x
+    R = Rotation.random(V, random_state=5).as_matrix()                            # teacher poses
+    X = np.stack([base @ R[i].T for i in range(V)]).astype(np.float32)           # views, centred camera frame
+    t = np.zeros((V, 3))
+    lab = rng.integers(0, 2, V)                                                   # own poses: right, or turned about z
+    R_s = np.stack([R[i] @ (HALF_TURNS["z"] if lab[i] else np.eye(3)) for i in range(V)])
+    net = train_scorer(X[:48], R[:48], t[:48], ["z"], steps=300, batch=16, width=16, noise_deg=2.0,
+                       student=(R_s[:48], t[:48], lab[:48], np.ones(48, bool)), student_frac=1.0, log=lambda m: None)
+    point, head = net.layers()
+    tc = decode_metadata_value(encode_turn_classifier(point, head, ["z"], 0.0, 1.0))
+    picked = [int(np.argmax(score_sets(tc["weights"], turned_sets(X[i], R_s[i], t[i], ["z"])))) for i in range(48, V)]
+    assert np.mean(np.array(picked) == lab[48:]) >= 0.9                           # held-out views
