@@ -23,7 +23,7 @@ def test_average_is_the_mean_of_the_snapshots_with_the_newest_metadata(tmp_path)
     floats = [k for k, v in sa.items() if v.is_floating_point()]
     assert floats and all(torch.allclose(avg["state_dict"][k], (sa[k] + sb[k] + sc[k]) / 3, atol=1e-6) for k in floats)
     assert any(not torch.equal(sa[k], sb[k]) for k in floats)                  # the snapshots really differ
-    assert avg["step"] == 300 and avg["optimizer"] is None and avg["averaged"] == {"count": 3, "steps": [100, 200, 300]}
+    assert avg["step"] == 300 and avg["optimizer"] is None and avg["averaged"] == {"count": 3, "steps": [100, 200, 300], "duplicates": 0}
     out = tmp_path / "avg.pt"
     assert main([str(out), str(a), str(b), str(c)]) == 0
     model, ck = model_from_checkpoint(out)                                     # loads and runs like any checkpoint
@@ -38,3 +38,34 @@ def test_snapshots_of_different_runs_are_refused(tmp_path):
         average_checkpoints([a, other])
     with pytest.raises(ConfigError):
         average_checkpoints([])
+
+
+def test_copies_of_one_step_count_once(tmp_path):
+    import shutil
+    a, b = _snapshot(tmp_path / "a.pt", 1, 100), _snapshot(tmp_path / "b.pt", 2, 200)
+    copies = [shutil.copyfile(b, tmp_path / f"b{i}.pt") for i in range(4)]  # a copy loop that outlived its lane
+    avg = average_checkpoints([a, b, *copies])
+    sa, sb = (load_checkpoint(p)["state_dict"] for p in (a, b))
+    floats = [k for k, v in sa.items() if v.is_floating_point()]
+    assert all(torch.allclose(avg["state_dict"][k], (sa[k] + sb[k]) / 2, atol=1e-6) for k in floats)
+    assert avg["averaged"] == {"count": 2, "steps": [100, 200], "duplicates": 4}
+
+
+def test_snapshot_copier_keeps_one_copy_per_saved_step(tmp_path):
+    import os
+    from equipose.train.long_runs import SnapshotCopier
+    state, dest = tmp_path / "state", tmp_path / "snaps"
+    (state / "m").mkdir(parents=True)
+    copier = SnapshotCopier(["m", "absent"], dest, state_dir=state)
+    assert copier.poll() == []                                                 # nothing saved yet, no folder needed
+    _snapshot(state / "m" / "latest.pt", 1, 100)
+    assert [p.name for p in copier.poll()] == ["000000100.pt"]
+    assert copier.poll() == []                                                 # unchanged file: no second copy
+    os.utime(state / "m" / "latest.pt", ns=(1, 1))                             # touched, same step: still one copy
+    assert copier.poll() == []
+    _snapshot(state / "m" / "latest.pt", 2, 200)
+    made = copier.poll()
+    assert [p.name for p in made] == ["000000200.pt"] and load_checkpoint(made[0])["step"] == 200
+    assert sorted(p.name for p in (dest / "m").iterdir()) == ["000000100.pt", "000000200.pt"]
+    avg = average_checkpoints(sorted((dest / "m").glob("*.pt")))
+    assert avg["averaged"]["steps"] == [100, 200]

@@ -4,7 +4,8 @@ run at a steady learning rate sits nearer the middle of the basin the optimiser 
 Usage: ``python -m equipose.train.averaging OUT.pt SNAPSHOT.pt...`` (e.g. copies of a lane's ``latest.pt`` taken
 every two minutes). The result keeps the newest snapshot's metadata (step, calibration, training record), carries the
 averaged floating-point tensors (BatchNorm running statistics included) and no optimiser state; it calibrates,
-exports and ships like any checkpoint.
+exports and ships like any checkpoint. Snapshots of the same step are counted once (a copy loop that outlives its
+lane, or a lane between two saves, copies one checkpoint many times; counting each copy would weight it that often).
 
 Measured (2026-11-24, 500 test views, 8 copies): chair-partial, 7 snapshots over 136.4k–139.6k steps 4.15° / 0.56
 against 4.37° / 0.56 for a single checkpoint of the same lane at 134.4k.
@@ -25,10 +26,21 @@ __all__ = ["average_checkpoints", "main"]
 def average_checkpoints(paths: list) -> dict:
     """Checkpoint dicts of one architecture → one checkpoint: floating-point weights and buffers averaged over the
     snapshots, everything else (integer buffers, metadata) from the one with the highest step; optimiser dropped.
+    Snapshots of a step already seen are skipped (``out["averaged"]["duplicates"]`` counts them).
     Raises ``ConfigError`` for an empty list or snapshots of different architectures, categories or modes."""
     if not paths:
         raise ConfigError("average_checkpoints needs at least one checkpoint")
-    cks = [load_checkpoint(p) for p in paths]
+    cks, kept, seen = [], [], set()
+    for p in paths:
+        c = load_checkpoint(p)
+        step = int(c.get("step", 0))
+        if step in seen:
+            continue
+        seen.add(step)
+        cks.append(c)
+        kept.append(p)
+    duplicates = len(paths) - len(cks)
+    paths = kept
     ref = max(cks, key=lambda c: int(c.get("step", 0)))
     for p, c in zip(paths, cks):
         same = (c.get("model_config") == ref.get("model_config") and c.get("category") == ref.get("category")
@@ -43,7 +55,8 @@ def average_checkpoints(paths: list) -> dict:
         else:
             state[k] = v.clone()
     out = dict(ref, state_dict=state, optimizer=None)
-    out["averaged"] = {"count": len(cks), "steps": sorted(int(c.get("step", 0)) for c in cks)}
+    out["averaged"] = {"count": len(cks), "steps": sorted(int(c.get("step", 0)) for c in cks),
+                       "duplicates": duplicates}
     return out
 
 
@@ -54,8 +67,9 @@ def main(argv=None) -> int:
     a = ap.parse_args(argv)
     ck = average_checkpoints(a.snapshots)
     torch.save(ck, a.out)
+    dup = ck["averaged"]["duplicates"]
     print(f"averaged {ck['averaged']['count']} checkpoints (steps {ck['averaged']['steps'][0]}–"
-          f"{ck['averaged']['steps'][-1]}) → {a.out}")
+          f"{ck['averaged']['steps'][-1]}{f'; {dup} of a step already counted skipped' if dup else ''}) → {a.out}")
     return 0
 
 

@@ -13,10 +13,12 @@ distilled from ``<category>-complete`` in the same folder.
 
 Commands (``python -m equipose.train.long_runs ...``):
     seed NAME ...            recover the shipped ONNX networks into resumable checkpoints (``train/onnx_weights.py``)
-    run --lane A,B,C --minutes M [--slice S]
+    run --lane A,B,C --minutes M [--slice S] [--snapshots DIR [--snapshot-every SEC]]
     slice NAME --minutes M
                              resume each named model for S minutes in turn until M minutes are spent (one process
-                             per core: torch uses 1 thread)
+                             per core: torch uses 1 thread); ``--snapshots`` keeps a copy of each new ``latest.pt``
+                             as ``DIR/<name>/<step>.pt`` (checked every SEC seconds, default 120) for weight
+                             averaging (``python -m equipose.train.averaging``)
     adopt NAME RUN_DIR       start tracking a model trained with ``equipose train --out RUN_DIR``
     show                     print every manifest (steps, data version, last validation)
 """
@@ -33,7 +35,8 @@ import time
 
 import numpy as np
 
-__all__ = ["STATE_DIR", "seed_model", "adopt_run", "run_slice", "run_lane", "data_version", "read_manifest"]
+__all__ = ["STATE_DIR", "seed_model", "adopt_run", "run_slice", "run_lane", "data_version", "read_manifest",
+           "SnapshotCopier"]
 
 REPO = pathlib.Path(__file__).resolve().parents[1]
 STATE_DIR = REPO / "train" / "state"
@@ -192,18 +195,86 @@ def run_slice(name: str, minutes: float, *, state_dir=STATE_DIR, data_root=None,
     return val
 
 
+class SnapshotCopier:
+    """Copies of each model's ``latest.pt`` as training goes on: ``dest/<name>/<step, 9 digits>.pt``, one per saved
+    step (the trainer replaces ``latest.pt`` atomically, so a copy is always a whole checkpoint). ``poll()`` copies
+    what changed since the last call; ``start()`` polls every ``every`` seconds in a daemon thread until ``stop()``."""
+
+    def __init__(self, names: list, dest, *, state_dir=STATE_DIR, every: float = 120.0):
+        self.names, self.dest, self.state_dir, self.every = list(names), pathlib.Path(dest), pathlib.Path(state_dir), float(every)
+        self._seen: dict = {}
+        self._stop = None
+        self._thread = None
+
+    def poll(self) -> list:
+        """Copy every ``latest.pt`` whose modification time changed; return the new snapshot paths."""
+        import os
+        import shutil
+        import torch
+        made = []
+        for name in self.names:
+            src = self.state_dir / name / "latest.pt"
+            try:
+                stamp = src.stat().st_mtime_ns
+            except FileNotFoundError:
+                continue
+            if self._seen.get(name) == stamp:
+                continue
+            folder = self.dest / name
+            folder.mkdir(parents=True, exist_ok=True)
+            tmp = folder / f".{name}.tmp"
+            shutil.copyfile(src, tmp)
+            step = int(torch.load(tmp, map_location="cpu", weights_only=True).get("step", 0))
+            out = folder / f"{step:09d}.pt"
+            if out.exists():
+                tmp.unlink()
+            else:
+                os.replace(tmp, out)
+                made.append(out)
+            self._seen[name] = stamp
+        return made
+
+    def start(self) -> "SnapshotCopier":
+        import threading
+        self._stop = threading.Event()
+
+        def loop():
+            while not self._stop.is_set():
+                try:
+                    self.poll()
+                except (OSError, RuntimeError):           # a file replaced mid-copy: the next poll copies it again
+                    pass
+                self._stop.wait(self.every)
+
+        self._thread = threading.Thread(target=loop, name="equipose-snapshots", daemon=True)
+        self._thread.start()
+        return self
+
+    def stop(self) -> None:
+        if self._stop is not None:
+            self._stop.set()
+            self._thread.join()
+        self.poll()                                           # the slice's last checkpoint
+
+
 def run_lane(names: list, minutes: float, slice_minutes: float, *, state_dir=STATE_DIR, cache_dir=None,
-             log=print) -> None:
-    """Round-robin ``run_slice`` over ``names`` until ``minutes`` of wall time have passed."""
+             snapshots=None, snapshot_every: float = 120.0, log=print) -> None:
+    """Round-robin ``run_slice`` over ``names`` until ``minutes`` of wall time have passed; with ``snapshots`` (a
+    folder) a ``SnapshotCopier`` keeps each saved step there."""
     end = time.time() + 60.0 * minutes
+    copier = SnapshotCopier(names, snapshots, state_dir=state_dir, every=snapshot_every).start() if snapshots else None
     k = 0
-    while time.time() + 60.0 * min(2.0, slice_minutes) < end:
-        name = names[k % len(names)]
-        left = (end - time.time()) / 60.0
-        val = run_slice(name, min(slice_minutes, max(1.0, left - 1.0)), state_dir=state_dir, cache_dir=cache_dir,
-                        log=log)
-        log(f"[lane] {name}: val median {val.get('val_rot_median_deg')}  5° {val.get('val_acc_5deg')}")
-        k += 1
+    try:
+        while time.time() + 60.0 * min(2.0, slice_minutes) < end:
+            name = names[k % len(names)]
+            left = (end - time.time()) / 60.0
+            val = run_slice(name, min(slice_minutes, max(1.0, left - 1.0)), state_dir=state_dir,
+                            cache_dir=cache_dir, log=log)
+            log(f"[lane] {name}: val median {val.get('val_rot_median_deg')}  5° {val.get('val_acc_5deg')}")
+            k += 1
+    finally:
+        if copier is not None:
+            copier.stop()
 
 
 def main(argv=None) -> int:
@@ -213,6 +284,8 @@ def main(argv=None) -> int:
     r = sub.add_parser("run"); r.add_argument("--lane", required=True); r.add_argument("--minutes", type=float, required=True)
     r.add_argument("--slice", type=float, default=20.0)
     r.add_argument("--cache-dir", help="render cache folder (default: data_cache/ beside the package)")
+    r.add_argument("--snapshots", help="keep a copy of each saved step here (DIR/<name>/<step>.pt) for averaging")
+    r.add_argument("--snapshot-every", type=float, default=120.0, help="seconds between checks (default 120)")
     o = sub.add_parser("slice", help="one slice of one model (e.g. on a lent GPU)"); o.add_argument("name")
     o.add_argument("--minutes", type=float, required=True); o.add_argument("--cache-dir")
     o.add_argument("--batch-size", type=int, help="this slice only (default: the model's config)")
@@ -235,7 +308,7 @@ def main(argv=None) -> int:
                                          batch_size=args.batch_size))
     elif args.cmd == "run":
         run_lane([n.strip() for n in args.lane.split(",") if n.strip()], args.minutes, args.slice, state_dir=state,
-                 cache_dir=args.cache_dir)
+                 cache_dir=args.cache_dir, snapshots=args.snapshots, snapshot_every=args.snapshot_every)
     else:
         for m in sorted(state.glob("*/manifest.json")):
             man = json.loads(m.read_text())
