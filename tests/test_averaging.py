@@ -53,7 +53,7 @@ def test_copies_of_one_step_count_once(tmp_path):
 
 def test_snapshot_copier_keeps_one_copy_per_saved_step(tmp_path):
     import os
-    from equipose.train.long_runs import SnapshotCopier
+    from equipose.train.snapshots import SnapshotCopier
     state, dest = tmp_path / "state", tmp_path / "snaps"
     (state / "m").mkdir(parents=True)
     copier = SnapshotCopier(["m", "absent"], dest, state_dir=state)

@@ -35,8 +35,7 @@ import time
 
 import numpy as np
 
-__all__ = ["STATE_DIR", "seed_model", "adopt_run", "run_slice", "run_lane", "data_version", "read_manifest",
-           "SnapshotCopier"]
+__all__ = ["STATE_DIR", "seed_model", "adopt_run", "run_slice", "run_lane", "data_version", "read_manifest"]
 
 REPO = pathlib.Path(__file__).resolve().parents[1]
 STATE_DIR = REPO / "train" / "state"
@@ -195,72 +194,11 @@ def run_slice(name: str, minutes: float, *, state_dir=STATE_DIR, data_root=None,
     return val
 
 
-class SnapshotCopier:
-    """Copies of each model's ``latest.pt`` as training goes on: ``dest/<name>/<step, 9 digits>.pt``, one per saved
-    step (the trainer replaces ``latest.pt`` atomically, so a copy is always a whole checkpoint). ``poll()`` copies
-    what changed since the last call; ``start()`` polls every ``every`` seconds in a daemon thread until ``stop()``."""
-
-    def __init__(self, names: list, dest, *, state_dir=STATE_DIR, every: float = 120.0):
-        self.names, self.dest, self.state_dir, self.every = list(names), pathlib.Path(dest), pathlib.Path(state_dir), float(every)
-        self._seen: dict = {}
-        self._stop = None
-        self._thread = None
-
-    def poll(self) -> list:
-        """Copy every ``latest.pt`` whose modification time changed; return the new snapshot paths."""
-        import os
-        import shutil
-        import torch
-        made = []
-        for name in self.names:
-            src = self.state_dir / name / "latest.pt"
-            try:
-                stamp = src.stat().st_mtime_ns
-            except FileNotFoundError:
-                continue
-            if self._seen.get(name) == stamp:
-                continue
-            folder = self.dest / name
-            folder.mkdir(parents=True, exist_ok=True)
-            tmp = folder / f".{name}.tmp"
-            shutil.copyfile(src, tmp)
-            step = int(torch.load(tmp, map_location="cpu", weights_only=True).get("step", 0))
-            out = folder / f"{step:09d}.pt"
-            if out.exists():
-                tmp.unlink()
-            else:
-                os.replace(tmp, out)
-                made.append(out)
-            self._seen[name] = stamp
-        return made
-
-    def start(self) -> "SnapshotCopier":
-        import threading
-        self._stop = threading.Event()
-
-        def loop():
-            while not self._stop.is_set():
-                try:
-                    self.poll()
-                except (OSError, RuntimeError):           # a file replaced mid-copy: the next poll copies it again
-                    pass
-                self._stop.wait(self.every)
-
-        self._thread = threading.Thread(target=loop, name="equipose-snapshots", daemon=True)
-        self._thread.start()
-        return self
-
-    def stop(self) -> None:
-        if self._stop is not None:
-            self._stop.set()
-            self._thread.join()
-        self.poll()                                           # the slice's last checkpoint
-
-
 def run_lane(names: list, minutes: float, slice_minutes: float, *, state_dir=STATE_DIR, cache_dir=None,
              snapshots=None, snapshot_every: float = 120.0, log=print) -> None:
     """Round-robin ``run_slice`` over ``names`` until ``minutes`` of wall time have passed; with ``snapshots`` (a
     folder) a ``SnapshotCopier`` keeps each saved step there."""
+    from .snapshots import SnapshotCopier
     end = time.time() + 60.0 * minutes
     copier = SnapshotCopier(names, snapshots, state_dir=state_dir, every=snapshot_every).start() if snapshots else None
     k = 0
