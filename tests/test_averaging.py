@@ -49,6 +49,9 @@ def test_copies_of_one_step_count_once(tmp_path):
     floats = [k for k, v in sa.items() if v.is_floating_point()]
     assert all(torch.allclose(avg["state_dict"][k], (sa[k] + sb[k]) / 2, atol=1e-6) for k in floats)
     assert avg["averaged"] == {"count": 2, "steps": [100, 200], "duplicates": 4}
+    other = _snapshot(tmp_path / "c.pt", 3, 200)                                # another run's step 200
+    with pytest.raises(ConfigError, match="different weights"):
+        average_checkpoints([a, b, other])
 
 
 def test_snapshot_copier_keeps_one_copy_per_saved_step(tmp_path):

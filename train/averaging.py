@@ -23,31 +23,36 @@ from equipose.train.checkpoint import load_checkpoint
 __all__ = ["average_checkpoints", "main"]
 
 
+def _same_weights(a: dict, b: dict) -> bool:
+    sa, sb = a["state_dict"], b["state_dict"]
+    return sa.keys() == sb.keys() and all(torch.equal(sa[k], sb[k]) for k in sa)
+
+
 def average_checkpoints(paths: list) -> dict:
     """Checkpoint dicts of one architecture → one checkpoint: floating-point weights and buffers averaged over the
     snapshots, everything else (integer buffers, metadata) from the one with the highest step; optimiser dropped.
-    Snapshots of a step already seen are skipped (``out["averaged"]["duplicates"]`` counts them).
-    Raises ``ConfigError`` for an empty list or snapshots of different architectures, categories or modes."""
+    Copies of a step already seen (same step, same weights) are skipped (``out["averaged"]["duplicates"]`` counts
+    them). Raises ``ConfigError`` for an empty list, two different snapshots of one step, or snapshots of different
+    architectures, categories or modes."""
     if not paths:
         raise ConfigError("average_checkpoints needs at least one checkpoint")
-    cks, kept, seen = [], [], set()
+    by_step = {}                                                   # step → (path, checkpoint), first copy kept
     for p in paths:
         c = load_checkpoint(p)
         step = int(c.get("step", 0))
-        if step in seen:
-            continue
-        seen.add(step)
-        cks.append(c)
-        kept.append(p)
-    duplicates = len(paths) - len(cks)
-    paths = kept
-    ref = max(cks, key=lambda c: int(c.get("step", 0)))
-    for p, c in zip(paths, cks):
+        if step not in by_step:
+            by_step[step] = (p, c)
+        elif not _same_weights(c, by_step[step][1]):
+            raise ConfigError(f"{p} and {by_step[step][0]} are both step {step} but hold different weights; average "
+                              "snapshots of one run only")
+    ref = by_step[max(by_step)][1]
+    for p, c in by_step.values():
         same = (c.get("model_config") == ref.get("model_config") and c.get("category") == ref.get("category")
                 and c.get("partial") == ref.get("partial") and c["state_dict"].keys() == ref["state_dict"].keys())
         if not same:
             raise ConfigError(f"{p}: not a snapshot of the same network as the others (architecture, category, mode "
                               "or weights differ); average snapshots of one run only")
+    cks = [c for _, c in by_step.values()]
     state = {}
     for k, v in ref["state_dict"].items():
         if v.is_floating_point():
@@ -55,8 +60,7 @@ def average_checkpoints(paths: list) -> dict:
         else:
             state[k] = v.clone()
     out = dict(ref, state_dict=state, optimizer=None)
-    out["averaged"] = {"count": len(cks), "steps": sorted(int(c.get("step", 0)) for c in cks),
-                       "duplicates": duplicates}
+    out["averaged"] = {"count": len(cks), "steps": sorted(by_step), "duplicates": len(paths) - len(cks)}
     return out
 
 
