@@ -10,7 +10,8 @@ Convention:
     by v must give the same canonical shape and every t_j shifted by v.
 
 Use ``assert_equivariant(fn, points)`` in tests of any layer or model; ``torch_model_fn`` and ``onnx_model_fn``
-adapt a torch module or an onnxruntime session to a model function.
+adapt a torch module or an onnxruntime session to a model function. ``posed_state`` builds the per-object state a
+pipeline stage runs on (``equipose.runtime.stage``), for testing a stage on its own.
 """
 from __future__ import annotations
 
@@ -19,7 +20,8 @@ from typing import Callable, Iterable
 import numpy as np
 
 from equipose.core import icosahedral
-__all__ = ["assert_equivariant", "equivariance_errors", "torch_model_fn", "torch_layer_fn", "onnx_model_fn"]
+__all__ = ["assert_equivariant", "equivariance_errors", "torch_model_fn", "torch_layer_fn", "onnx_model_fn",
+           "posed_state"]
 
 ModelFn = Callable[[np.ndarray], dict]
 
@@ -115,3 +117,29 @@ def onnx_model_fn(session) -> ModelFn:
         return dict(zip(names, session.run(None, {inp: np.ascontiguousarray(points, dtype=np.float32)})))
 
     return fn
+
+
+def posed_state(points, rotation, translation, *, canonical=None, symmetry: str = "none", up=None):
+    """An ``ObjectState`` holding one chosen pose, as the stages after selection see it.
+
+    Convention: ``points`` [N, 3] the model input (model units, centred camera frame); ``rotation`` [3, 3] category
+    frame → that frame and ``translation`` [3] model units; ``canonical`` [M, 3] the canonical shape in the category
+    frame (default: the points carried there by the pose); ``up`` None or a unit camera-frame direction.
+    """
+    from equipose.preprocess.sampling import PreparedPoints
+    from equipose.runtime.hypotheses import select_hypothesis
+    from equipose.runtime.stage import ObjectState
+    x = np.asarray(points, np.float64)
+    R, t = np.asarray(rotation, np.float64).reshape(3, 3), np.asarray(translation, np.float64).reshape(3)
+    if x.ndim != 2 or x.shape[1] != 3:
+        raise ValueError(f"points must be [N, 3], got {x.shape}")
+    canon = (x - t) @ R if canonical is None else np.asarray(canonical, np.float64)          # [M, 3]
+    prep = PreparedPoints(model_points=x, centre_m=np.array([0.0, 0.0, 1.0]), scale=1.0,
+                          order=np.arange(len(x)))
+    state = ObjectState(prep=prep, R=R[None].copy(), t=t[None].copy(), scores=np.zeros(1), canonical=canon,
+                        template=canon, symmetry=symmetry, calibrated=True, canonical_category=canon,
+                        up=None if up is None else np.asarray(up, np.float64))
+    state.selection = select_hypothesis(state.R, state.t, state.scores, symmetry=symmetry)
+    state.set_pose(R, t)
+    return state
+

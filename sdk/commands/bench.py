@@ -1,4 +1,4 @@
-"""``equipose bench``: CPU latency of the whole pipeline per backend, one table with ratios (see ``equipose.runtime.bench``)."""
+"""``equipose bench``: CPU latency of the whole pipeline per backend, one table with ratios (see ``equipose.bench``)."""
 from __future__ import annotations
 
 import json
@@ -69,7 +69,7 @@ def _variant_at(model_path: str, n: int, tmp: pathlib.Path) -> str:
 
 
 def run(args) -> int:
-    from equipose.runtime.bench import format_table, run_benchmark
+    from equipose.bench.harness import format_table, run_benchmark
     if args.threads < 1 or args.batch < 1 or args.runs < 1:
         raise ConfigError("--threads, --batch and --runs must be ≥ 1")
     model = _resolve_model(args.model)
@@ -101,7 +101,7 @@ def run(args) -> int:
 
 
 def _sweep(model, args, tmp, refine="auto") -> int:
-    from equipose.runtime.bench import run_backend
+    from equipose.bench.harness import run_backend
     runs = min(args.runs, 30)
     out = {"model": model, "runs": runs, "refine": refine, "points": [], "threads": [], "objects": []}
     print(f"sweep (onnxruntime-fp32, {runs} runs each, end-to-end p50 ms, ICP re-scoring: {refine}; random-weight "

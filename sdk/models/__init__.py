@@ -108,11 +108,11 @@ def model_card(path) -> dict:
     """One model's listing (JSON-ready): name, id (``arch.tag``), path, category, mode, preset, precision, size, test
     metrics, training.
 
-    Reads the metadata only (onnx protobuf via onnxruntime's model metadata; no inference). ``precision`` comes from
-    the metadata key (older files: from the ``.int8`` name suffix).
+    Reads the metadata only (the onnx protobuf's metadata map, ``equipose.core.model_file``; no onnxruntime session,
+    no inference). ``precision`` comes from the metadata key (older files: from the ``.int8`` name suffix).
     """
-    from equipose.runtime.hypotheses import parse_symmetry
-    from equipose.runtime.session import read_metadata
+    from equipose.core.model_file import read_metadata
+    from equipose.core.symmetry import parse_symmetry
     path = pathlib.Path(path)
     meta = read_metadata(path)
     parse_symmetry(str(meta["symmetry"]))

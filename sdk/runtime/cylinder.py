@@ -13,9 +13,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from equipose.core.geometry import rotation_between
 
-__all__ = ["point_normals", "cylinder_axis", "finish_cylinder"]
+__all__ = ["point_normals", "cylinder_axis"]
 
 
 def point_normals(points, k: int = 12) -> np.ndarray:
@@ -53,10 +52,3 @@ def cylinder_axis(points, axis0, k: int = 12) -> tuple:
     if min(costs) >= SWITCH_RATIO * c0:
         return a0, c0, c0
     return (best if best @ a0 >= 0 else -best), c0, min(costs)
-
-
-def finish_cylinder(result, model_points, axis_index: int = 2) -> None:
-    """Turn a ``PoseResult`` in place so its symmetry axis (column ``axis_index``) is the cylinder stage's axis."""
-    a0 = result.rotation[:, axis_index]
-    a, _, _ = cylinder_axis(model_points, a0)
-    result.set_pose(rotation_between(a0, a) @ result.rotation, result.translation)

@@ -15,17 +15,15 @@ import numpy as np
 
 from equipose import preprocess as _crop
 from equipose.core.errors import ConfigError, EquiposeError, InvalidPointsError, ModelFormatError, RegionError
-from equipose.runtime.hypotheses import parse_symmetry
 from equipose.core.metadata import decode_metadata
 from equipose.core.presets import ModelConfig, total_macs
-from equipose.runtime.copies import copy_batch, copy_rotations
-from equipose.runtime.instance import INSTANCE_ITERS, build_instance_model, finish_instance
-from equipose.runtime.postprocess import finish_category
-from equipose.runtime.refine import resolve_polish, resolve_refine
-from equipose.runtime.template import resolve_densify
+from equipose.runtime.instance import INSTANCE_ITERS, build_instance_model
+from equipose.runtime.pipeline import Pipeline
+from equipose.runtime.profiles import merge_stage_options, profile_options
 from equipose.runtime.result import FrameError, PoseResult
+from equipose.runtime.spec import ModelSpec
+from equipose.runtime.stage import stage_metadata_keys
 from equipose.runtime.upright import check_up, per_object_up, resolve_plane_up
-from equipose.runtime.visibility import resolve_visibility
 from equipose.models import resolve_model_file
 from equipose.runtime.session import INPUT_NAME, OUTPUT_NAMES, check_io, open_session, run_in_chunks
 
@@ -78,8 +76,9 @@ class PoseEstimator:
     def __init__(self, model_path, threads: int | None = None, *, crop_options: dict | None = None, top_k: int = 5,
                  refine: int | str = "auto", refine_iters: int | None = None, copies: int | str = "auto",
                  visibility: float | str | None = "auto", polish: int | str = "auto",
-                 densify: int | str = "auto", adaptive_threads: bool = True,
-                 model_points=None, instance_k: int = 10, instance_iters: int = INSTANCE_ITERS):
+                 densify: int | str = "auto", adaptive_threads: bool = True, profile: str = "default",
+                 stages: dict | None = None, model_points=None, instance_k: int = 10,
+                 instance_iters: int = INSTANCE_ITERS):
         path = resolve_model_file(model_path)
         if threads is not None and (not isinstance(threads, int) or threads < 0):
             raise ConfigError(f"threads must be None or a non-negative int, got {threads!r}")
@@ -87,42 +86,80 @@ class PoseEstimator:
         self.session = open_session(path, threads)
         props = dict(self.session.get_modelmeta().custom_metadata_map)
         self.metadata = decode_metadata(props, source=path.name)
+        self.spec = ModelSpec.from_metadata(self.metadata, path.name)         # unsupported symmetry → MetadataError
         self.runner = None
-        self.category = str(self.metadata["category"])
-        self.partial = bool(self.metadata["partial"])
-        self.num_points = int(self.metadata["num_points"])
+        self.category = self.spec.category
+        self.partial = self.spec.partial
+        self.num_points = self.spec.num_points
         self.num_canonical_points = int(self.metadata["num_canonical_points"])
-        self.scale = float(self.metadata["scale"])
-        self.symmetry = str(self.metadata["symmetry"])
-        parse_symmetry(self.symmetry)                                           # unsupported spec → MetadataError
-        self.random_init = bool(self.metadata["random_init"])
-        self.handle = self.metadata.get("handle")                               # [3] category frame, or None (stages)
-        self.calibration_rotation = np.asarray(self.metadata["calibration_rotation"], np.float64)     # [3, 3]
-        self.calibration_translation = np.asarray(self.metadata["calibration_translation"], np.float64)  # [3]
-        rcal = self.metadata["refine_calibration"]                              # None, or parsed and checked
-        self.refine, self.refine_iters = refine, refine_iters = resolve_refine(refine, refine_iters, rcal)
-        self.polish, self.densify = resolve_polish(polish, rcal, refine), resolve_densify(densify, rcal, refine)
-        if refine and rcal:                                                     # calibrated for refined poses
-            self.calibration_rotation, self.calibration_translation = rcal["rotation"], rcal["translation"]
-        copies = (rcal["copies"] if (refine and rcal and model_points is None) else 1) if copies == "auto" else copies
-        self.copy_rotations = copy_rotations(copies)                            # [K, 3, 3], copy 0 the identity
-        self.visibility = resolve_visibility(visibility, rcal if refine else None, self.partial, path.name)
-        self.copies = int(copies)
-        if self.copies > 1 and model_points is not None:
-            raise ConfigError("rotated input copies (copies > 1) do not apply in instance-level mode (model_points): "
-                              "leave copies='auto' or 1")
+        self.scale = self.spec.scale
+        self.symmetry = self.spec.symmetry
+        self.random_init = self.spec.random_init
+        self.handle = self.metadata.get("handle")                               # [3] category frame, or None
         if isinstance(top_k, bool) or not isinstance(top_k, int) or top_k < 1:
             raise ConfigError(f"top_k must be an int ≥ 1 (hypotheses listed per result), got {top_k!r}")
+        self.top_k = int(top_k)
+        self.profile = profile
+        explicit = {"rescore": {"k": refine, "iters": "auto" if refine_iters is None else refine_iters,
+                                "densify": densify},
+                    "copies": {"count": copies}, "view": {"exponent": visibility}, "polish": {"iters": polish}}
+        self.stage_options = merge_stage_options(profile_options(profile, path), explicit, stages)
+        if model_points is not None and copies not in ("auto", 1):
+            raise ConfigError("rotated input copies (copies > 1) do not apply in instance-level mode (model_points): "
+                              "leave copies='auto' or 1")
         self.crop_options = _crop.check_crop_options(crop_options or {})
         # the model reads N FPS-ordered points: a crop of 4·N (≥ 1024) keeps FPS coverage and bounds crop/FPS cost
         self.crop_options.setdefault("max_points", max(1024, 4 * self.num_points))
-        self.top_k = int(top_k)
         self.static_batch = check_io(self.session, path.name, self.num_points)
         macs = total_macs(ModelConfig.from_dict(self.metadata["model_config"]), partial=self.partial)
         self.single_thread = bool(adaptive_threads) and threads != 1 and macs < LIGHT_MODEL_MACS
         self._single_session = open_session(path, 1) if self.single_thread else None  # ≈ 20 ms off the first call
-        self.instance = None if model_points is None else \
-            build_instance_model(self, model_points, k=instance_k, iters=instance_iters)
+        self.instance = None
+        self._build_pipeline()
+        if model_points is not None:
+            self.instance = build_instance_model(self, model_points, k=instance_k, iters=instance_iters)
+            self._build_pipeline()
+
+    def _build_pipeline(self) -> None:
+        """(Re)build the stage pipeline from the metadata, the options and the calibration attributes."""
+        mode = "category" if self.instance is None else "instance"
+        probe = Pipeline.build(self.spec, self.stage_options, mode, {"instance": self.instance})
+        rescore, rcal = probe.get("rescore"), self.spec.refine_calibration
+        self.calibration_rotation, self.calibration_translation = \
+            (rcal["rotation"], rcal["translation"]) if (rescore and rcal) else self.spec.calibration
+        self.pipeline = probe
+        self._pipeline_inputs = self._stage_inputs()
+        self.refine = rescore.k if rescore else 0
+        self.refine_iters = rescore.iters if rescore else int((rcal or {}).get("iters", 10))
+        self.densify = rescore.densify if rescore else 0
+        self.polish = self.pipeline.get("polish").iters if "polish" in self.pipeline else 0
+        view = self.pipeline.get("view")
+        self.visibility = None if view is None else view.exponent
+        copies = self.pipeline.get("copies")
+        self.copies = 1 if copies is None else copies.count
+        self.copy_rotations = np.eye(3)[None] if copies is None else copies.rotations   # [K, 3, 3]
+
+    def _stage_inputs(self) -> tuple:
+        """What the pipeline was built from that callers may change on the estimator afterwards: the optional
+        metadata keys the stages read, the symmetry and the calibration (a change rebuilds it on the next call)."""
+        keys = tuple(id(self.metadata.get(k)) for k in stage_metadata_keys())
+        cal = (id(getattr(self, "calibration_rotation", None)), id(getattr(self, "calibration_translation", None)))
+        return keys + cal + (self.symmetry,)
+
+    def _current_pipeline(self) -> Pipeline:
+        if self._stage_inputs() != self._pipeline_inputs:                      # attributes changed since the build
+            cal = (self.calibration_rotation, self.calibration_translation)
+            self.spec = ModelSpec.from_metadata({**self.metadata, "symmetry": self.symmetry}, self.path.name)
+            self.pipeline = Pipeline.build(self.spec, self.stage_options,
+                                           "category" if self.instance is None else "instance",
+                                           {"instance": self.instance, "calibration": cal})
+            self._pipeline_inputs = self._stage_inputs()
+        return self.pipeline
+
+    @property
+    def pipeline_info(self) -> list:
+        """The stages this estimator runs, in order, with their settings (JSON-ready)."""
+        return self.pipeline.info()
 
     def uses_single_thread(self, batch: int) -> bool:
         """Whether a run of ``batch`` objects goes to the 1-thread session (``adaptive_threads``)."""
@@ -161,11 +198,10 @@ class PoseEstimator:
     def _finish(self, outputs: dict, b: int, prep: "_crop.PreparedPoints", *, prefer: int | None = None,
                 prefer_margin: float = 0.0, up=None) -> tuple:
         """Outputs of batch item ``b`` → (PoseResult without timings, selection ms)."""
-        if self.instance is not None:
-            if up is not None:
-                raise ConfigError("the up prior does not apply in instance-level mode (model_points): leave up=None")
-            return finish_instance(self, self.instance, outputs, b, prep, prefer=prefer, prefer_margin=prefer_margin)
-        return finish_category(self, outputs, b, prep, prefer=prefer, prefer_margin=prefer_margin, up=up)
+        if self.instance is not None and up is not None:
+            raise ConfigError("the up prior does not apply in instance-level mode (model_points): leave up=None")
+        return self._current_pipeline().run(outputs, b, prep, prefer=prefer, prefer_margin=prefer_margin, up=up,
+                                            category=self.category, top_k=self.top_k)
 
     def predict_points(self, points, *, up=None) -> PoseResult:
         """Pose of one object from its points.
@@ -192,7 +228,8 @@ class PoseEstimator:
 
     def _infer(self, preps, crops, fps_ms, crop_ms, counts, prefer=None, prefer_margin=0.0, ups=None) -> list:
         t0 = time.perf_counter()
-        x = copy_batch(preps, self.copy_rotations) if self.copies > 1 else \
+        copies = self._current_pipeline().get("copies")
+        x = copies.input_batch(preps) if copies is not None else \
             np.stack([p.model_points for p in preps])                           # [B·K, N, 3] or [B, N, 3]
         outputs = run_in_chunks(self.runner or self.run_model, x)                # ≤ RUN_CHUNK inputs per run
         inf_ms = _ms(t0)
@@ -275,8 +312,12 @@ class PoseEstimator:
                     raise
                 out[i] = FrameError.from_exception(-1, e, object_id=i)
                 continue
-            preps.append(prep); crops.append(c); counts.append(len(c.points)); slots.append(i)
-            crop_ms.append(shared_ms + (t2 - t1) * 1e3); fps_ms.append((t3 - t2) * 1e3)
+            preps.append(prep)
+            crops.append(c)
+            counts.append(len(c.points))
+            slots.append(i)
+            crop_ms.append(shared_ms + (t2 - t1) * 1e3)
+            fps_ms.append((t3 - t2) * 1e3)
             prefs.append(None if prefer is None else prefer[i])
         if preps:
             results = self._infer(preps, crops, fps_ms, crop_ms, counts, prefer=prefs, prefer_margin=prefer_margin,

@@ -25,7 +25,7 @@ from equipose.runtime.refine import icp_multi
 from equipose.runtime.upright import upright_icp
 
 __all__ = ["HALF_TURNS", "FLIP_ICP_ITERS", "FLIP_COARSE_ITERS", "FLIP_OBSERVED_POINTS", "FLIP_AMBIGUOUS_MARGIN",
-           "flip_scores", "finish_flip"]
+           "flip_scores"]
 
 FLIP_ICP_ITERS = 10                          # ICP iterations of the fits that decide (coarse ones included)
 FLIP_COARSE_ITERS = 3                        # iterations every template × candidate pair runs before the pruning
@@ -61,16 +61,3 @@ def flip_scores(model_points, rotation, translation, templates, axes=("z",), up=
     keep = best * C + np.arange(C)                                              # [C] rows of (template, candidate)
     R2, _, fine = fit(R1[keep], t1[keep], best, FLIP_ICP_ITERS - coarse)
     return cands, fine, R2                                                      # [C, 3, 3], [C], [C, 3, 3]
-
-
-def finish_flip(templates, result, model_points, translation, axes=("z",), up=None, partial: bool = True) -> None:
-    """Turn a ``PoseResult`` in place to the candidate (itself or a half turn) the templates fit best; ``ambiguous``
-    and ``flip_margin`` say how clearly they decide."""
-    R, s, R_fit = flip_scores(model_points, result.rotation, translation, templates, axes=axes, up=up,
-                              partial=partial)
-    order = np.argsort(s, kind="stable")
-    margin = float((s[order[1]] - s[order[0]]) / max(s[order[1]], 1e-12)) if len(s) > 1 else 1.0
-    if order[0] != 0:                                                            # turned: the template fit's rotation
-        result.set_pose(R_fit[order[0]], result.translation)
-    result.ambiguous = margin < FLIP_AMBIGUOUS_MARGIN
-    result.flip_margin = margin

@@ -12,10 +12,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from equipose.core.handles import (HANDLE_MIN_FRACTION, HANDLE_MIN_MASS, HANDLE_MIN_POINTS, HANDLE_MIN_SHARE,
-                                   fit_handle, handle_zone_count, turn_about_z)
+from equipose.core.handles import HANDLE_MIN_MASS, HANDLE_MIN_SHARE, fit_handle, turn_about_z
 
-__all__ = ["resolve_handle", "finish_handle"]
+__all__ = ["resolve_handle"]
 
 
 def resolve_handle(direction, model_points, rotation, translation) -> tuple:
@@ -32,16 +31,3 @@ def resolve_handle(direction, model_points, rotation, translation) -> tuple:
         return R, False, fit
     d = np.asarray(direction, np.float64)
     return R @ turn_about_z(fit.azimuth - np.arctan2(d[1], d[0])), True, fit
-
-
-def finish_handle(direction, result, model_points, translation, canonical_obj) -> None:
-    """Apply the handle stage to a ``PoseResult`` in place: the resolved full-6D pose (symmetry "none"), and
-    ``handle_visible`` = a handle was found and ≥ max(``HANDLE_MIN_POINTS``, ``HANDLE_MIN_FRACTION``·N) observed
-    points lie in the handle zone of the canonical shape (``canonical_obj`` [M, 3], category frame, model units)."""
-    R, found, _ = resolve_handle(direction, model_points, result.rotation, translation)
-    observed = (np.asarray(model_points, np.float64) - np.asarray(translation, np.float64)) @ R
-    count = handle_zone_count(observed, canonical_obj, direction)
-    result.symmetry = "none"                                                # the handle fixes the azimuth
-    result.set_pose(R, result.translation)
-    result.set_handle(direction, found and count >= max(HANDLE_MIN_POINTS, HANDLE_MIN_FRACTION * len(observed)),
-                      count)

@@ -18,7 +18,6 @@ Iterations: 50 by default (a start stops early once its pairs repeat). Measured 
 """
 from __future__ import annotations
 
-import time
 from dataclasses import dataclass
 
 import numpy as np
@@ -26,11 +25,8 @@ import numpy as np
 from equipose.core.errors import ConfigError
 from equipose.core.geometry import farthest_point_order
 from equipose.preprocess import check_points, prepare_points
-from equipose.runtime.hypotheses import select_hypothesis
-from equipose.runtime.refine import refine_hypotheses
-from equipose.runtime.result import PoseResult
 
-__all__ = ["InstanceModel", "build_instance_model", "finish_instance", "INSTANCE_ITERS"]
+__all__ = ["InstanceModel", "build_instance_model", "INSTANCE_ITERS"]
 
 TEMPLATE_POINTS = 1024          # model points kept (FPS) for ICP
 COARSE_ITERS = 3                # ICP steps for every hypothesis before the k best are refined
@@ -69,31 +65,3 @@ def build_instance_model(est, model_points, *, k: int = 10, iters: int = INSTANC
     A, b = R_c.T, -R_c.T @ (prep.centre_m / est.scale + t_c)
     sub = q[farthest_point_order(q.astype(np.float32), min(TEMPLATE_POINTS, len(q)))]  # [M', 3] m
     return InstanceModel(points_m=q, template=sub / est.scale @ A.T + b, A=A, b=b, k=k, iters=iters)
-
-
-def finish_instance(est, inst: InstanceModel, outputs: dict, b: int, prep, *, prefer=None,
-                    prefer_margin: float = 0.0) -> tuple:
-    """Batch item ``b`` of a network run → (PoseResult of the CAD model, selection ms)."""
-    t0 = time.perf_counter()
-    R_all = outputs["hypothesis_rotations"][b]                                  # [60, 3, 3]
-    t_all = outputs["hypothesis_translations"][b]                               # [60, 3] model units
-    s_all = outputs["hypothesis_scores"][b]                                     # [60]
-    # coarse: every hypothesis, a few ICP steps (an out-of-category object's network scores rank poorly); fine: the
-    # k best of those to convergence
-    R_all, t_all, s_all = refine_hypotheses(prep.model_points, inst.template, R_all, t_all, s_all, k=len(s_all),
-                                            iters=COARSE_ITERS, bidirectional=False)
-    R_all, t_all, s_all = refine_hypotheses(prep.model_points, inst.template, R_all, t_all, s_all, k=inst.k,
-                                            iters=inst.iters, bidirectional=False)
-    R_obj = np.einsum("aij,jk->aik", R_all, inst.A)                             # [60, 3, 3] CAD → camera
-    t_obj = np.einsum("aij,j->ai", R_all, inst.b) + t_all                       # [60, 3] model units
-    sel = select_hypothesis(R_obj, t_obj, s_all, symmetry="none", top_k=est.top_k, prefer=prefer,
-                            prefer_margin=prefer_margin)
-    U, _, Vt = np.linalg.svd(R_obj[sel.index])
-    R = U @ np.diag([1.0, 1.0, np.linalg.det(U @ Vt)]) @ Vt                     # [3, 3]
-    t_m = prep.to_metres(t_obj[sel.index])                                      # [3] metres, camera frame
-    res = PoseResult(
-        rotation=R, translation=t_m, score=sel.score, confidence=sel.confidence, ambiguous=sel.ambiguous,
-        canonical_shape=inst.points_m @ R.T + t_m, canonical_shape_object=inst.points_m.copy(),
-        hypothesis_index=sel.index, top_k=sel.top_k, symmetry="none", symmetry_axis=None, rotation_canonical=R.copy(),
-        category=est.category, random_init=est.random_init)
-    return res, (time.perf_counter() - t0) * 1e3

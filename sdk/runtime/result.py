@@ -12,7 +12,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from equipose.core.frame_error import FrameError  # noqa: F401  (re-exported: its home is the core)
 from equipose.core.geometry import matrix_to_quaternion
+from equipose.core.symmetry import canonicalise_rotation, parse_symmetry
 
 __all__ = ["PoseResult", "FrameError"]
 
@@ -50,6 +52,7 @@ class PoseResult:
             file's ``ambiguous_margin``), else None.
         frame_priors: models with metadata ``frame_priors`` (``equipose.runtime.frame_priors``): degrees each step
             turned the pose ({"mirror": 0.8, "footprint": -1.2}; None for a step that left it), else None.
+        extras: what further pipeline stages add (``equipose.runtime.stage``), JSON-ready, by field name.
         agreement: with rotated input copies (``PoseEstimator(copies=K)``, K > 1): the fraction of copies whose best
             hypothesis lies within 15° of their consensus (1 = all agree; low = the network is unsure), else None.
     """
@@ -84,10 +87,10 @@ class PoseResult:
     turn_margin: float | None = None
     frame_priors: dict | None = None
     agreement: float | None = None
+    extras: dict = field(default_factory=dict)
 
     def set_pose(self, rotation, translation):
         """Replace the pose (e.g. after smoothing) and update everything derived from it (shape, symmetry axis)."""
-        from equipose.runtime.hypotheses import canonicalise_rotation, parse_symmetry
         self.rotation = np.asarray(rotation, np.float64).reshape(3, 3)
         self.translation = np.asarray(translation, np.float64).reshape(3)
         self.canonical_shape = self.canonical_shape_object @ self.rotation.T + self.translation
@@ -164,6 +167,8 @@ class PoseResult:
             d["handle_visible"] = bool(self.handle_visible)
             d["handle_points"] = int(self.handle_points)
             d["handle_direction"] = np.round(self.handle_direction, 6).tolist()
+        for k, v in self.extras.items():
+            d[k] = np.round(v, 6).tolist() if isinstance(v, np.ndarray) else v
         if include_shape:
             d["canonical_shape_m"] = np.round(self.canonical_shape, 5).tolist()
         return d
@@ -193,23 +198,3 @@ class PoseResult:
         """
         from equipose.runtime.overlay import draw_pose
         return draw_pose(image, K, self, axis_length=axis_length, color=color, thickness=thickness, label=label)
-
-
-@dataclass
-class FrameError:
-    """A frame (or one object in it) that could not be processed; streams carry on after it.
-
-    Attributes: frame_index, object_id (None = whole frame), error (exception class name), message.
-    """
-    frame_index: int
-    error: str
-    message: str
-    object_id: int | None = None
-
-    @classmethod
-    def from_exception(cls, frame_index: int, exc: BaseException, object_id=None) -> "FrameError":
-        return cls(frame_index=frame_index, error=type(exc).__name__, message=str(exc), object_id=object_id)
-
-    def to_dict(self) -> dict:
-        return {"frame_index": self.frame_index, "object_id": self.object_id, "error": self.error,
-                "message": self.message}

@@ -10,7 +10,7 @@ import pathlib
 import numpy as np
 
 from equipose.core.errors import ModelFormatError
-from equipose.core.metadata import decode_metadata
+from equipose.core.model_file import read_metadata  # noqa: F401  (re-exported: reading metadata needs no session)
 
 __all__ = ["INPUT_NAME", "OUTPUT_NAMES", "RUN_CHUNK", "open_session", "check_io", "read_metadata", "run_in_chunks"]
 
@@ -66,9 +66,3 @@ def check_io(session, name: str, num_points: int):
                                "from its metadata; re-export the model")
     return shape[0] if isinstance(shape[0], int) else None
 
-
-def read_metadata(path) -> dict:
-    """The decoded equipose metadata of a model file (no inference)."""
-    path = pathlib.Path(path)
-    session = open_session(path, 1)
-    return decode_metadata(dict(session.get_modelmeta().custom_metadata_map), source=path.name)

@@ -22,9 +22,8 @@ from scipy.spatial import cKDTree
 
 from equipose.core.errors import ConfigError, InvalidPointsError
 from equipose.core.metadata import MAX_DENSIFY
-from equipose.runtime.refine import resolve_rescoring_option
 
-__all__ = ["densify_template", "resolve_densify", "MAX_DENSIFY"]
+__all__ = ["densify_template", "MAX_DENSIFY"]
 
 
 def densify_template(points: np.ndarray, k: int) -> np.ndarray:
@@ -44,10 +43,3 @@ def densify_template(points: np.ndarray, k: int) -> np.ndarray:
     pairs = np.unique(np.stack([np.minimum(i, j), np.maximum(i, j)], 1), axis=0)  # [D, 2] each pair once
     pairs = pairs[pairs[:, 0] != pairs[:, 1]]                                   # duplicate points: no midpoint
     return np.concatenate([Y, (Y[pairs[:, 0]] + Y[pairs[:, 1]]) / 2])         # [M + D, 3]
-
-
-def resolve_densify(densify, refine_calibration: dict | None, refine: int) -> int:
-    """``PoseEstimator(densify=...)`` → neighbours per template point for the ICP template (0 = the predicted shape as
-    it is)."""
-    return resolve_rescoring_option("densify", densify, refine_calibration, refine, MAX_DENSIFY,
-                                    "neighbours per template point whose midpoints join the ICP template")

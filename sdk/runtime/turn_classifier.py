@@ -19,7 +19,7 @@ import numpy as np
 
 from equipose.runtime.hypotheses import HALF_TURNS
 
-__all__ = ["TURN_POINTS", "turned_sets", "score_sets", "turn_scores", "finish_turn"]
+__all__ = ["TURN_POINTS", "turned_sets", "score_sets", "turn_scores"]
 
 TURN_POINTS = 256            # observation points scored (a fixed, evenly spaced subset of the model input)
 
@@ -54,20 +54,3 @@ def score_sets(weights: dict, sets: np.ndarray) -> np.ndarray:
 def turn_scores(weights: dict, model_points, rotation, translation, axes=("x", "y", "z")) -> np.ndarray:
     """[1 + len(axes)] scores of the pose and of its half turns about ``axes``."""
     return score_sets(weights, turned_sets(model_points, rotation, translation, axes))
-
-
-def finish_turn(turn: dict, result, model_points, translation, axes=None) -> None:
-    """Turn a ``PoseResult`` in place when a half turn of its pose outscores it by more than ``turn["margin"]``;
-    ``result.turn_margin`` records the pose's lead over its best turn after the decision (logits; small = unsure,
-    which also sets ``ambiguous`` below ``turn["ambiguous_margin"]``). ``axes``: default the file's; the half turns
-    about them should form a group with the identity (one axis, or all three) for the lead to be exact."""
-    axes = list(turn["axes"] if axes is None else axes)
-    s = turn_scores(turn["weights"], model_points, result.rotation, translation, axes)     # [1 + A]
-    k = int(np.argmax(s[1:]))
-    if s[1 + k] - s[0] > turn["margin"]:
-        result.set_pose(result.rotation @ HALF_TURNS[axes[k]], result.translation)
-        s = s[[1 + k] + [j for j in range(len(s)) if j != 1 + k]]                         # the turn is the pose now
-    lead = float(s[0] - s[1:].max()) if len(s) > 1 else float("inf")
-    result.turn_margin = lead
-    if lead < turn["ambiguous_margin"]:
-        result.ambiguous = True

@@ -24,9 +24,9 @@ import numpy as np
 from scipy.spatial import ConvexHull, cKDTree
 from scipy.spatial import QhullError
 
-from equipose.core.errors import ConfigError, InvalidPointsError
+from equipose.core.errors import InvalidPointsError
 
-__all__ = ["visible_mask", "view_residuals", "view_rescore", "resolve_visibility", "DEFAULT_EXPONENT", "INCUMBENT_MARGIN", "VIEW_AMBIGUOUS_MARGIN",
+__all__ = ["visible_mask", "view_residuals", "view_rescore", "DEFAULT_EXPONENT", "INCUMBENT_MARGIN", "VIEW_AMBIGUOUS_MARGIN",
            "COPY_SUPPORT_WEIGHT"]
 
 DEFAULT_EXPONENT = 1.0
@@ -136,20 +136,3 @@ def view_rescore(prep, template: np.ndarray, rotations: np.ndarray, translations
     if len(rest):
         out[rest] = top + 1e-9 + (s[rest] - s[rest].min())
     return out
-
-
-def resolve_visibility(visibility, refine_calibration: dict | None, partial: bool, name: str) -> float | None:
-    """``PoseEstimator(visibility=...)`` → the exponent in use, or None (off). "auto": the file's
-    ``refine_calibration["visibility"]`` when its re-scoring runs (``refine_calibration`` given) on a partial model."""
-    if isinstance(visibility, str) and visibility == "auto":
-        rc = refine_calibration or {}
-        return rc.get("visibility") if partial else None
-    if visibility is None:
-        return None
-    if isinstance(visibility, (bool, str)) or not isinstance(visibility, (int, float)) or not -3 <= visibility <= 6:
-        raise ConfigError(f"visibility must be 'auto', None or an exponent in -3..6 (view-aware re-scoring, "
-                          f"equipose.runtime.visibility), got {visibility!r}")
-    if not partial:
-        raise ConfigError(f"visibility (view-aware re-scoring) applies to partial-view models; {name} is a "
-                          "complete-shape model: leave visibility='auto' or None")
-    return float(visibility)

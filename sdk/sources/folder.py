@@ -15,7 +15,7 @@ import pathlib
 import numpy as np
 
 from equipose.core.errors import SourceError
-from equipose.runtime.result import FrameError
+from equipose.core.frame_error import FrameError
 from equipose.sources.base import Frame, FrameSource, register_source
 
 __all__ = ["FolderSource", "FolderWriter", "read_intrinsics", "write_intrinsics"]

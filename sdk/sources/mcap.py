@@ -16,7 +16,8 @@ import time
 import numpy as np
 
 from equipose.core.errors import SourceError
-from equipose.runtime.result import FrameError
+from equipose.core.frame_error import FrameError
+from equipose.core.intrinsics import check_intrinsics
 from equipose.sources._dai import import_depthai
 from equipose.sources.base import Frame, FrameSource, register_source
 
@@ -233,7 +234,6 @@ class McapWriter:
         H, W = depth.shape
         K = np.asarray(frame.K, np.float64)
         if frame.image_size is not None and tuple(frame.image_size) != (W, H):
-            from equipose.preprocess import check_intrinsics
             K = check_intrinsics(K, (H, W), frame.image_size)                   # store K for the stored size
         ts = datetime.timedelta(seconds=float(frame.timestamp if frame.timestamp is not None else self.count / 30.0))
         m = dai.ImgFrame()

@@ -15,7 +15,7 @@ import warnings
 import numpy as np
 
 from equipose.core.errors import SourceError
-from equipose.runtime.result import FrameError
+from equipose.core.frame_error import FrameError
 from equipose.sources.base import Frame, FrameSource, register_source
 
 __all__ = ["PcdSource", "read_organized_pcd", "read_organized_cloud", "intrinsics_from_organized"]

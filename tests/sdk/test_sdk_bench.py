@@ -6,7 +6,7 @@ import sys
 
 import pytest
 
-from equipose.runtime.bench import format_table, percentiles, run_benchmark
+from equipose.bench.harness import format_table, percentiles, run_benchmark
 
 
 def test_percentiles():

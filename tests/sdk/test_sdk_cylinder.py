@@ -3,7 +3,9 @@ import numpy as np
 import pytest
 
 from equipose.core.errors import MetadataError
-from equipose.runtime.cylinder import cylinder_axis, finish_cylinder, point_normals
+from equipose.runtime.cylinder import cylinder_axis, point_normals
+from equipose.runtime.stages.cylinder import CylinderStage
+from equipose.testing import posed_state
 
 
 def closed_cylinder(radius, height, n=1500, seed=0):
@@ -51,17 +53,16 @@ def test_a_right_axis_is_kept():
     assert np.allclose(axis, near / np.linalg.norm(near))                       # kept as is (more precise)
 
 
-def test_finish_cylinder_turns_the_pose():
-    from types import SimpleNamespace
+def test_cylinder_stage_turns_the_pose():
     from scipy.spatial.transform import Rotation
     R = Rotation.from_euler("x", 30.0, degrees=True).as_matrix()
     P = view(closed_cylinder(0.05, 0.04), R)
     lying = R @ Rotation.from_euler("y", 90.0, degrees=True).as_matrix()        # axis in the tin's plane
-    res = SimpleNamespace(rotation=lying, translation=np.zeros(3))
-    res.set_pose = lambda Rn, t: (setattr(res, "rotation", Rn), setattr(res, "translation", t))
-    finish_cylinder(res, P)
-    assert np.degrees(np.arccos(min(1.0, abs(res.rotation[:, 2] @ R[:, 2])))) < 10.0
-    assert np.allclose(res.rotation @ res.rotation.T, np.eye(3), atol=1e-9) and np.linalg.det(res.rotation) > 0
+    state = posed_state(P, lying, np.zeros(3))
+    CylinderStage().run(state)
+    Rn = state.rotation
+    assert np.degrees(np.arccos(min(1.0, abs(Rn[:, 2] @ R[:, 2])))) < 10.0
+    assert np.allclose(Rn @ Rn.T, np.eye(3), atol=1e-9) and np.linalg.det(Rn) > 0
 
 
 def test_shape_prior_metadata():

@@ -8,8 +8,9 @@ from scipy.spatial.transform import Rotation
 
 from equipose import PoseEstimator, errors
 from equipose.core.geometry import rotation_angle_deg
-from equipose.runtime.flip import HALF_TURNS, finish_flip
-from equipose.runtime.result import PoseResult
+from equipose.runtime.flip import HALF_TURNS
+from equipose.runtime.stages.flip import FlipStage
+from equipose.testing import posed_state
 
 
 def _wedge(rng, n=600):
@@ -20,35 +21,30 @@ def _wedge(rng, n=600):
     return np.c_[x, y, z - 0.2]
 
 
-def _result(R, t):
-    shape = np.zeros((4, 3))
-    return PoseResult(rotation=R, translation=np.asarray(t, float), score=0.0, confidence=0.0, ambiguous=True,
-                      canonical_shape=shape, canonical_shape_object=shape, hypothesis_index=0)
-
-
 @pytest.mark.parametrize("axis", ["z", "y"])
-def test_finish_flip_turns_a_flipped_pose_back(rng, axis):
+def test_flip_stage_turns_a_flipped_pose_back(rng, axis):
     template = _wedge(rng)
     R_true = Rotation.from_euler("zyx", [40, 25, -10], degrees=True).as_matrix()
     t = np.array([0.02, -0.01, 0.03])
     obs = _wedge(rng, 400) @ R_true.T + t                                       # another sample of the same shape
-    res = _result(R_true @ HALF_TURNS[axis], t)                                 # the network's flipped answer
-    finish_flip(template[None], res, obs, t, axes=(axis,))
-    assert rotation_angle_deg(res.rotation, R_true) < 3.0                       # the fit to another sample
-    assert res.flip_margin > 0.1 and not res.ambiguous
-    R_fixed = res.rotation.copy()
-    finish_flip(template[None], res, obs, t, axes=(axis,))                      # a right pose stays as it is
-    assert rotation_angle_deg(res.rotation, R_fixed) < 1e-4
+    stage = FlipStage(template[None], (axis,), partial=True)
+    state = posed_state(obs, R_true @ HALF_TURNS[axis], t)                      # the network's flipped answer
+    stage.run(state)
+    assert rotation_angle_deg(state.rotation, R_true) < 3.0                     # the fit to another sample
+    assert state.extras["flip_margin"] > 0.1 and not state.ambiguous
+    R_fixed = state.rotation.copy()
+    stage.run(state)                                                            # a right pose stays as it is
+    assert rotation_angle_deg(state.rotation, R_fixed) < 1e-4
 
 
-def test_finish_flip_with_up_only_turns_about_up(rng):
+def test_flip_stage_with_up_only_turns_about_up(rng):
     template = _wedge(rng)
     R_true = Rotation.from_euler("z", 70, degrees=True).as_matrix()
     obs = _wedge(rng, 400) @ R_true.T
-    res = _result(R_true @ HALF_TURNS["z"], np.zeros(3))
-    finish_flip(template[None], res, obs, np.zeros(3), axes=("x", "z"), up=R_true[:, 2])
-    assert rotation_angle_deg(res.rotation, R_true) < 3.0
-    assert res.rotation[:, 2] @ R_true[:, 2] > np.cos(np.radians(1e-3))          # the axis stays held on up
+    state = posed_state(obs, R_true @ HALF_TURNS["z"], np.zeros(3), up=R_true[:, 2])
+    FlipStage(template[None], ("x", "z"), partial=True).run(state)
+    assert rotation_angle_deg(state.rotation, R_true) < 3.0
+    assert state.rotation[:, 2] @ R_true[:, 2] > np.cos(np.radians(1e-3))      # the axis stays held on up
 
 
 def test_model_with_flip_templates(tiny_model, tmp_path, rng):

@@ -12,8 +12,9 @@ from equipose import PoseEstimator, errors
 from equipose.core.geometry import rotation_angle_deg
 from equipose.core.metadata import encode_turn_classifier
 from equipose.runtime.hypotheses import HALF_TURNS
-from equipose.runtime.result import PoseResult
-from equipose.runtime.turn_classifier import finish_turn, score_sets, turned_sets
+from equipose.runtime.stages.turn import TurnStage
+from equipose.runtime.turn_classifier import score_sets, turned_sets
+from equipose.testing import posed_state
 
 
 def _mean_x_scorer(axes=("z",), margin=0.0, ambiguous_margin=0.05):
@@ -29,12 +30,6 @@ def decode_metadata_value(text):
     return _turn_classifier(text, "test")
 
 
-def _result(R, t):
-    shape = np.zeros((4, 3))
-    return PoseResult(rotation=R, translation=np.asarray(t, float), score=0.0, confidence=0.0, ambiguous=False,
-                      canonical_shape=shape, canonical_shape_object=shape, hypothesis_index=0)
-
-
 def test_turned_sets_are_the_half_turned_canonical_points(rng):
     R = Rotation.random(random_state=1).as_matrix()
     t = rng.normal(size=3)
@@ -47,7 +42,7 @@ def test_turned_sets_are_the_half_turned_canonical_points(rng):
 
 def test_numpy_scores_match_the_torch_network(rng):
     torch = pytest.importorskip("torch")
-    from equipose.train.turn_classifier import PointSetScore
+    from equipose.train.fitting.turn_classifier import PointSetScore
     torch.manual_seed(0)
     net = PointSetScore(width=8).eval()
     sets = rng.normal(size=(5, 4, 64, 3)).astype(np.float32)
@@ -58,26 +53,26 @@ def test_numpy_scores_match_the_torch_network(rng):
     np.testing.assert_allclose(score_sets(tc["weights"], sets), expected, rtol=1e-4, atol=1e-5)
 
 
-def test_finish_turn_turns_back_a_pose_the_scorer_finds_turned(rng):
-    tc = _mean_x_scorer(axes=("z",))
+def test_turn_stage_turns_back_a_pose_the_scorer_finds_turned(rng):
+    stage = TurnStage(_mean_x_scorer(axes=("z",)))
     R_true = Rotation.from_euler("zyx", [30, 20, -10], degrees=True).as_matrix()
     y = rng.normal(size=(256, 3)) + [0.5, 0, 0]                                   # canonical points, mean x > 0
     x = y @ R_true.T
-    res = _result(R_true @ HALF_TURNS["z"], np.zeros(3))                          # the turned answer
-    finish_turn(tc, res, x, np.zeros(3))
-    assert rotation_angle_deg(res.rotation, R_true) < 1e-4
-    assert res.turn_margin > 0.5 and not res.ambiguous
-    finish_turn(tc, res, x, np.zeros(3))                                          # a right pose stays
-    assert rotation_angle_deg(res.rotation, R_true) < 1e-4
+    state = posed_state(x, R_true @ HALF_TURNS["z"], np.zeros(3))                 # the turned answer
+    stage.run(state)
+    assert rotation_angle_deg(state.rotation, R_true) < 1e-4
+    assert state.extras["turn_margin"] > 0.5 and not state.ambiguous
+    stage.run(state)                                                              # a right pose stays
+    assert rotation_angle_deg(state.rotation, R_true) < 1e-4
 
 
-def test_finish_turn_keeps_the_pose_within_the_margin_and_flags_a_near_tie(rng):
-    tc = _mean_x_scorer(axes=("z",), margin=10.0, ambiguous_margin=0.5)
+def test_turn_stage_keeps_the_pose_within_the_margin_and_flags_a_near_tie(rng):
+    stage = TurnStage(_mean_x_scorer(axes=("z",), margin=10.0, ambiguous_margin=0.5))
     y = rng.normal(size=(256, 3)) + [0.1, 0, 0]
-    res = _result(HALF_TURNS["z"], np.zeros(3))
-    finish_turn(tc, res, y, np.zeros(3))
-    np.testing.assert_allclose(res.rotation, HALF_TURNS["z"])                     # the turn did not win by 10
-    assert res.turn_margin < 0 and res.ambiguous
+    state = posed_state(y, HALF_TURNS["z"], np.zeros(3))
+    stage.run(state)
+    np.testing.assert_allclose(state.rotation, HALF_TURNS["z"])                   # the turn did not win by 10
+    assert state.extras["turn_margin"] < 0 and state.ambiguous
 
 
 @pytest.mark.parametrize("change, message", [
@@ -118,7 +113,7 @@ def test_model_with_a_turn_classifier(tiny_model, tmp_path, rng):
 
 def test_turn_labels_pick_the_turn_closest_to_the_teachers_pose():
     pytest.importorskip("torch")
-    from equipose.train.turn_classifier import turn_labels
+    from equipose.train.fitting.turn_classifier import turn_labels
     R_t = Rotation.random(6, random_state=3).as_matrix()                           # [6, 3, 3] teacher poses
     small = Rotation.from_rotvec([0.05, -0.03, 0.02]).as_matrix()                  # ≈ 3.5° of own error
     turns = [np.eye(3), HALF_TURNS["x"], HALF_TURNS["y"], HALF_TURNS["z"], HALF_TURNS["y"], np.eye(3)]
@@ -133,7 +128,7 @@ def test_turn_labels_pick_the_turn_closest_to_the_teachers_pose():
 
 def test_scorer_trained_on_own_poses_learns_which_turn_is_true(rng):
     torch = pytest.importorskip("torch")
-    from equipose.train.turn_classifier import train_scorer
+    from equipose.train.fitting.turn_classifier import train_scorer
     torch.set_num_threads(1)
     V = 64
     base = rng.normal(size=(400, 3)) * [1.0, 0.4, 0.2]

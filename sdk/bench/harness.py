@@ -4,7 +4,7 @@ Convention:
     Input: one 640×480 depth frame (the bundled PCL mug sample, uint16 mm) and ``objects`` copies of its object box
     (objects per frame = model batch). Times are wall-clock milliseconds (``time.perf_counter``) after warm-up;
     "end-to-end" is one ``predict``-equivalent call for all objects of the frame, per object figures divide by it.
-    Backends (``equipose.runtime.backends``; each measured in a fresh subprocess, so ``peak_rss_mb`` is that
+    Backends (``equipose.bench.backends``; each measured in a fresh subprocess, so ``peak_rss_mb`` is that
     backend's own peak resident memory): onnxruntime-fp32, onnxruntime-int8, and the torch-side torch and icp60
     (``equipose.train.bench_backends``, registered when first asked for).
     Threads: ``threads`` is every backend's budget (torch ``set_num_threads``); onnxruntime runs a single object of a
@@ -23,7 +23,7 @@ import time
 
 import numpy as np
 
-from equipose.runtime.backends import BACKENDS, get_backend
+from equipose.bench.backends import BACKENDS, get_backend
 __all__ = ["BACKENDS", "run_backend", "run_benchmark", "matmul_peak_gmacs", "format_table", "percentiles"]
 STAGES = ("crop", "fps", "inference", "selection")
 
@@ -130,7 +130,7 @@ def run_backend(backend: str, model_path: str, threads: int = 2, objects: int = 
 
 def _run_isolated(backend, model_path, threads, objects, runs, warmup, checkpoint, refine="auto",
                   adaptive_threads=True) -> dict:
-    cmd = [sys.executable, "-m", "equipose.runtime.bench", backend, model_path, str(threads), str(objects), str(runs),
+    cmd = [sys.executable, "-m", "equipose.bench.harness", backend, model_path, str(threads), str(objects), str(runs),
            str(warmup), checkpoint or "", str(refine), "1" if adaptive_threads else "0"]
     env = dict(os.environ, OMP_NUM_THREADS=str(threads), DEPTHAI_LEVEL="error")
     p = subprocess.run(cmd, capture_output=True, text=True, env=env)

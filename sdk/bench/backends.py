@@ -4,7 +4,7 @@ Convention:
     A backend is a ``Backend`` record: ``setup(est, frame, box, *, threads, checkpoint) -> (note, parity)`` swaps
     ``est.runner`` (model points [B, N, 3] model units → the four output arrays) for its own and may report a note on
     the weights and the max |Δ| against the ONNX file (None when not compared); ``model_file(path) -> path`` picks the
-    file the ``PoseEstimator`` opens. The runtime registers the onnxruntime backends; torch-side backends live with
+    file the ``PoseEstimator`` opens. This module registers the onnxruntime backends; torch-side backends live with
     the torch code (``PROVIDERS``: name → module that registers it when imported), so this module never imports them.
         onnxruntime-fp32  the model file through ``PoseEstimator``
         onnxruntime-int8  its ``.int8.onnx`` sibling (made with ``equipose export --int8``; quantised on the fly by

@@ -1,0 +1,64 @@
+"""Named profiles: points on the speed / accuracy curve of every model, as stage options (timm-style registry).
+
+``PoseEstimator(M, profile=P)`` (CLI ``--profile``): ``"accurate"`` runs every stage with the settings the model
+file was calibrated for; ``"default"`` the settings chosen to keep accuracy within noise at ≤ 10 ms per object on
+2 cores; ``"fast"`` the plain network plus the file's metadata stages. Each profile holds options for all models
+(``"*"``) and per shipped model (its name); measured accuracy and latency per model: docs/benchmarks.md.
+Options explicitly given to ``PoseEstimator`` (``refine=``, ``copies=``, ``stages=`` ...) win over the profile.
+"""
+from __future__ import annotations
+
+import pathlib
+
+from equipose.core.errors import ConfigError
+
+__all__ = ["PROFILES", "register_profile", "profile_options", "merge_stage_options"]
+
+PROFILES: dict = {
+    "accurate": {"*": {}},
+    "default": {"*": {}},
+    "fast": {"*": {"rescore": False}},
+}
+
+
+def register_profile(name: str, options: dict) -> None:
+    """Add or replace a profile: {"*": {stage: options}, "<model name>": {stage: options}}."""
+    if not isinstance(options, dict) or not all(isinstance(v, dict) for v in options.values()):
+        raise ConfigError(f"profile {name!r}: options must be {{model name or '*': {{stage: options}}}}")
+    PROFILES[name] = options
+
+
+def _model_name(path) -> str:
+    stem = pathlib.Path(path).name
+    for suffix in (".onnx", ".int8"):
+        stem = stem[: -len(suffix)] if stem.endswith(suffix) else stem
+    return stem
+
+
+def profile_options(profile: str, path) -> dict:
+    """{stage: options} of ``profile`` for the model file at ``path`` (its name picks the per-model entry)."""
+    if profile not in PROFILES:
+        raise ConfigError(f"unknown profile {profile!r}; profiles: {', '.join(PROFILES)}")
+    table = PROFILES[profile]
+    return merge_stage_options(table.get("*", {}), table.get(_model_name(path), {}))
+
+
+def merge_stage_options(*layers) -> dict:
+    """Stage options merged left to right: a later layer's value wins unless it is "auto" (or None where "auto"
+    is the default); a stage set to False is off, True or a dict turns it back on."""
+    out: dict = {}
+    for layer in layers:
+        for stage, opts in (layer or {}).items():
+            if opts is False or opts is True:
+                out[stage] = opts if opts is False else {}
+                continue
+            if not isinstance(opts, dict):
+                raise ConfigError(f"stage {stage!r}: options must be a dict, True or False, got {opts!r}")
+            base = out.get(stage)
+            explicit = {k: v for k, v in opts.items() if not (isinstance(v, str) and v == "auto")}
+            if base is False:
+                if explicit:
+                    out[stage] = explicit
+                continue
+            out[stage] = {**(base or {}), **explicit}
+    return out

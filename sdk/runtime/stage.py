@@ -1,0 +1,149 @@
+"""The stage interface of the pose pipeline: what runs on one object between the network outputs and its result.
+
+A stage is one class in one file (``equipose/runtime/stages/``), registered with ``@register_stage``. It declares
+
+- ``name``: how profiles, options and ``PoseEstimator(stages=...)`` refer to it;
+- ``metadata_key``: the model metadata key that switches it on (None: it runs for every model of its ``modes``);
+- ``options``: its settings with their defaults ("auto" = the model file's value);
+- ``build(spec, options, context)``: parses its metadata and options once per estimator and returns the configured stage,
+  or None when it does not apply to this model;
+- ``run(state)``: works on one object's ``ObjectState`` in place.
+
+Stages run in the order of ``STAGE_ORDER`` (a stage's ``after`` places it there); results carry what a stage adds
+in ``state.extras`` (JSON-ready values, keyed by the result field name).
+
+Convention: ``ObjectState`` holds one object in model units and the centred camera frame of its model input
+(``PreparedPoints.model_points``): hypotheses map the network's learned frame (after ``calibrate``: the category
+frame) into that frame, ``x = R y + t``.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from equipose.core.errors import ConfigError
+
+__all__ = ["Stage", "ObjectState", "register_stage", "registered_stages", "stage_metadata_keys", "STAGE_ORDER"]
+
+STAGE_ORDER: list = []          # stage names in run order (registration inserts each after its ``after``)
+_REGISTRY: dict = {}
+
+
+class Stage:
+    """Base class of a pipeline stage (see the module docstring)."""
+
+    name: str = ""
+    metadata_key: str | None = None
+    modes: tuple = ("category",)            # "category" and/or "instance"
+    options: dict = {}
+    after: str | None = None                # run right after this stage (None: first)
+
+    @classmethod
+    def build(cls, spec, options: dict, context: dict):
+        """The configured stage for this model, or None when it does not apply. ``options``: this stage's options
+        with the user's and the profile's values merged over ``cls.options``; ``context``: {"built": the stages
+        configured so far, "options": every stage's options, ...} (see ``Pipeline.build``)."""
+        return cls()
+
+    def run(self, state: "ObjectState") -> None:
+        raise NotImplementedError
+
+    def describe(self) -> dict:
+        """Settings of the configured stage (JSON-ready), for ``PoseEstimator.pipeline_info``."""
+        return {}
+
+
+def register_stage(cls):
+    """Class decorator: add a ``Stage`` subclass to the registry and to ``STAGE_ORDER`` after ``cls.after``."""
+    if not (isinstance(cls, type) and issubclass(cls, Stage)) or not cls.name:
+        raise ConfigError(f"register_stage takes a Stage subclass with a name, got {cls!r}")
+    if cls.name in _REGISTRY and _REGISTRY[cls.name] is not cls:
+        raise ConfigError(f"a stage named {cls.name!r} is already registered ({_REGISTRY[cls.name].__module__})")
+    if cls.after is not None and cls.after not in STAGE_ORDER:
+        raise ConfigError(f"stage {cls.name!r} runs after {cls.after!r}, which is not registered (registered: "
+                          f"{', '.join(STAGE_ORDER)})")
+    _REGISTRY[cls.name] = cls
+    if cls.name in STAGE_ORDER:
+        STAGE_ORDER.remove(cls.name)
+    STAGE_ORDER.insert(0 if cls.after is None else STAGE_ORDER.index(cls.after) + 1, cls.name)
+    return cls
+
+
+def registered_stages() -> dict:
+    """{name: Stage class} of every registered stage, in run order."""
+    return {n: _REGISTRY[n] for n in STAGE_ORDER}
+
+
+def stage_metadata_keys() -> tuple:
+    """The model metadata keys that switch registered stages on."""
+    return tuple(c.metadata_key for c in registered_stages().values() if c.metadata_key)
+
+
+@dataclass
+class ObjectState:
+    """One object on its way through the pipeline (model units, centred camera frame of its model input).
+
+    Attributes:
+        prep: its ``PreparedPoints`` (``model_points`` [N, 3], ``cloud`` [P, 3], ``centre_m``, ``scale``).
+        R, t, scores: hypotheses [A, 3, 3], [A, 3], [A] (lower better); learned frame until ``calibrated``.
+        canonical: [M, 3] predicted canonical shape, learned frame (the mean over rotated copies).
+        template: the ICP template in the learned frame (``canonical`` unless a stage densifies it).
+        copy_poses: rotated copies only: each copy's best (R [K, 3, 3], t [K, 3]) in the input's frame.
+        consensus: rotated copies only: (R [3, 3], t [3], support [K] bool).
+        rescored: the ICP re-scoring ran (scores are residuals); view_scored: the view-aware re-scoring ran.
+        calibrated: R, t are in the category frame; canonical_category [M, 3] the shape there; learned: the
+            hypotheses (R, t) before calibration; calibration: (δR [3, 3], δt [3]) applied.
+        ambiguous_margin: flip margin below which the selection is ambiguous (None: the selection's default).
+        selection: ``Selection`` of the chosen hypothesis; rotation [3, 3], translation [3] the pose (category
+            frame → centred camera frame, model units).
+        up: None or the unit camera-frame up the pose keeps; up_source "given" | "rest_facet" | None.
+        symmetry: the symmetry results report (a stage may settle it, e.g. the handle).
+        ambiguous, confidence: the result's flags (stages may lower confidence or set ambiguous).
+        prefer, prefer_margin: tracking's preferred hypothesis (index or rotation) and its margin; top_k: hypotheses
+            listed in the result.
+        extras: what stages add to the result (result field name → value).
+    """
+    prep: object
+    R: np.ndarray
+    t: np.ndarray
+    scores: np.ndarray
+    canonical: np.ndarray
+    template: np.ndarray
+    symmetry: str = "none"
+    copy_poses: tuple | None = None
+    consensus: tuple | None = None
+    rescored: bool = False
+    view_scored: bool = False
+    calibrated: bool = False
+    learned: tuple | None = None
+    calibration: tuple | None = None
+    canonical_category: np.ndarray | None = None
+    ambiguous_margin: float | None = None
+    selection: object = None
+    rotation: np.ndarray | None = None
+    translation: np.ndarray | None = None
+    up: np.ndarray | None = None
+    up_source: str | None = None
+    ambiguous: bool = False
+    confidence: float = 1.0
+    prefer: object = None
+    prefer_margin: float = 0.0
+    top_k: int = 5
+    extras: dict = field(default_factory=dict)
+
+    @property
+    def points(self) -> np.ndarray:
+        """[N, 3] the model input points (model units, centred camera frame)."""
+        return self.prep.model_points
+
+    @property
+    def every_point(self) -> np.ndarray:
+        """[P, 3] every point FPS chose from (the whole crop, thinned), or the model input when that is all."""
+        return self.prep.model_points if self.prep.cloud is None else self.prep.cloud
+
+    def set_pose(self, rotation, translation=None) -> None:
+        """Replace the chosen pose (rotation [3, 3]; translation [3] model units, kept when None)."""
+        self.rotation = np.asarray(rotation, np.float64).reshape(3, 3)
+        if translation is not None:
+            self.translation = np.asarray(translation, np.float64).reshape(3)

@@ -1,0 +1,54 @@
+"""Stage ``polish``: more ICP iterations on the selected pose after re-scoring, on every point of the crop.
+
+Options: ``iters`` ("auto": the file's ``refine_calibration`` polish when its re-scoring runs; 0 = off).
+
+Convention: ICP in the learned frame against the re-scoring's template, then calibrated (model units).
+"""
+from __future__ import annotations
+
+from equipose.core.icp import icp_multi
+from equipose.core.metadata import MAX_POLISH
+from equipose.core.geometry import nearest_rotation
+from equipose.core.errors import ConfigError
+from equipose.runtime.hypotheses import apply_calibration
+from equipose.runtime.stage import ObjectState, Stage, register_stage
+
+__all__ = ["PolishStage"]
+
+
+@register_stage
+class PolishStage(Stage):
+    name = "polish"
+    after = "select"
+    options = {"iters": "auto"}
+
+    def __init__(self, iters: int, bidirectional: bool):
+        self.iters, self.bidirectional = iters, bidirectional
+
+    @classmethod
+    def build(cls, spec, options, context):
+        rescore = context["built"].get("rescore")
+        n = options["iters"]
+        if isinstance(n, str) and n == "auto":
+            n = (spec.refine_calibration or {}).get("polish", 0) if rescore else 0
+        elif isinstance(n, bool) or not isinstance(n, int) or not 0 <= n <= MAX_POLISH:
+            raise ConfigError(f"polish must be 'auto' or an int in 0..{MAX_POLISH} (ICP iterations on the selected "
+                              f"pose after re-scoring), got {n!r}")
+        elif n and rescore is None:
+            raise ConfigError("polish is part of the ICP re-scoring (ICP iterations on the selected pose after "
+                              "re-scoring): it needs refine > 0 (or leave polish='auto')")
+        return cls(n, not spec.partial) if n else None
+
+    def describe(self) -> dict:
+        return {"iters": self.iters}
+
+    def run(self, state: ObjectState) -> None:
+        if not state.rescored or state.selection is None:
+            return
+        i = state.selection.index
+        R_l, t_l = state.learned
+        Rp, tp, _ = icp_multi(state.every_point, state.template, R_l[i][None], t_l[i][None], iters=self.iters,
+                              bidirectional=self.bidirectional)
+        Rp, tp = apply_calibration(Rp, tp, *state.calibration)                  # [1, 3, 3], [1, 3] category frame
+        state.R[i], state.t[i] = Rp[0], tp[0]
+        state.set_pose(nearest_rotation(Rp[0]), tp[0])

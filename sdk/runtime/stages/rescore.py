@@ -1,0 +1,85 @@
+"""Stage ``rescore``: ICP re-scoring of the ``k`` best hypotheses (and the copies' consensus) against the predicted
+canonical shape, re-ranked by residual (``equipose.runtime.refine``); skipped under the up prior, which fits its own.
+
+Options: ``k`` hypotheses ("auto": the file's ``refine_calibration``; 0 = off), ``iters`` ICP iterations ("auto":
+the file's, else 10), ``densify`` (the template gains the midpoints to each point's N nearest neighbours,
+``equipose.runtime.template``; "auto": the file's). All starts run in one batched ICP.
+
+Convention: model units, learned frame, centred camera frame of the model input; complete models fit both ways.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from equipose.core.icp import icp_multi
+from equipose.core.metadata import MAX_DENSIFY
+from equipose.core.errors import ConfigError
+from equipose.runtime.stage import ObjectState, Stage, register_stage
+from equipose.runtime.template import densify_template
+
+__all__ = ["RescoreStage"]
+
+
+def _int_option(name: str, value, low: int, high: int | None, meaning: str) -> int:
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < low or \
+            (high is not None and value > high):
+        rng = f"{low}..{high}" if high is not None else f"≥ {low}"
+        raise ConfigError(f"{name} must be 'auto' or an int in {rng} ({meaning}), got {value!r}")
+    return int(value)
+
+
+@register_stage
+class RescoreStage(Stage):
+    name = "rescore"
+    after = "copies"
+    options = {"k": "auto", "iters": "auto", "densify": "auto"}
+
+    def __init__(self, k: int, iters: int, densify: int, bidirectional: bool):
+        self.k, self.iters, self.densify, self.bidirectional = k, iters, densify, bidirectional
+
+    @classmethod
+    def build(cls, spec, options, context):
+        rcal = spec.refine_calibration or {}
+        k = options["k"]
+        k = rcal.get("k", 0) if isinstance(k, str) and k == "auto" else _int_option(
+            "refine", k, 0, None, "hypotheses re-scored by ICP")
+        iters = options["iters"]
+        iters = rcal.get("iters", 10) if iters in ("auto", None) else _int_option(
+            "refine_iters", iters, 1, None, "ICP iterations per re-scored hypothesis")
+        densify = options["densify"]
+        if isinstance(densify, str) and densify == "auto":
+            densify = rcal.get("densify", 0) if k else 0
+        else:
+            densify = _int_option("densify", densify, 0, MAX_DENSIFY, "neighbours per template point whose midpoints "
+                                  "join the ICP template")
+            if densify and not k:
+                raise ConfigError("densify is part of the ICP re-scoring: it needs refine > 0 (or leave "
+                                  "densify='auto')")
+        return cls(k, iters, densify, not spec.partial) if k else None
+
+    def describe(self) -> dict:
+        return {"k": self.k, "iters": self.iters, "densify": self.densify}
+
+    def run(self, state: ObjectState) -> None:
+        if state.up is not None:                                                # the up prior fits its own
+            return
+        if self.densify:
+            state.template = densify_template(state.canonical, self.densify)   # [M', 3]
+        s = state.scores
+        top = np.argsort(s)[: min(self.k, len(s))]                              # [k] best first
+        R0, t0 = state.R[top], state.t[top]
+        if state.consensus is not None:                                         # the consensus in the same ICP
+            R0 = np.concatenate([R0, state.consensus[0][None]])
+            t0 = np.concatenate([t0, state.consensus[1][None]])
+        R, t, res = icp_multi(state.points, state.template, R0, t0, iters=self.iters,
+                              bidirectional=self.bidirectional)
+        if state.consensus is not None:
+            state.consensus = (R[-1], t[-1], state.consensus[2], float(res[-1]))
+            R, t, res = R[:-1], t[:-1], res[:-1]
+        rest = np.setdiff1d(np.arange(len(s)), top)
+        out = np.empty_like(s)
+        out[top] = res
+        if len(rest):                                                           # the others rank behind, in order
+            out[rest] = res.max() + 1e-9 + (s[rest] - s[rest].min())
+        state.R[top], state.t[top], state.scores = R, t, out
+        state.rescored = True
