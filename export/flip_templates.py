@@ -92,7 +92,7 @@ def add_flip_templates(model_path, teacher_model, clouds, *, axes=("z",), count:
 def main(argv=None) -> int:
     import os
 
-    from equipose.train.modelnet import load_modelnet
+    from equipose.train.data.modelnet import load_modelnet
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--model", required=True, help="the .onnx file to update (in place)")
     p.add_argument("--teacher", required=True, help="complete-shape model (name or .onnx) that reconstructs shapes")

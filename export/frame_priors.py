@@ -70,7 +70,7 @@ def choose_frame_priors(rows: list) -> str:
 
 def main(argv=None) -> int:
     from equipose.export.onnx_export import update_metadata
-    from equipose.train.modelnet import load_modelnet
+    from equipose.train.data.modelnet import load_modelnet
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--model", required=True, help="the .onnx file to update (in place)")
     p.add_argument("--category", required=True, help="ModelNet category of the training clouds")

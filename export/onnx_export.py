@@ -134,7 +134,7 @@ def export_model(model, path, *, category: str, scale: float, symmetry: str = "n
     import onnx
     import torch
 
-    from equipose.train.model import EquiPoseNet
+    from equipose.train.network.model import EquiPoseNet
 
     if not isinstance(model, EquiPoseNet):
         raise ConfigError(f"export_model needs an equipose.train.EquiPoseNet, got {type(model).__name__}")
@@ -202,7 +202,7 @@ def export_random_model(preset, path, partial: bool = True, category: str = "unk
     """Export a randomly initialised model of ``preset`` (tests, benchmarks, demo placeholder); ``random_init`` set."""
     import torch
 
-    from equipose.train.model import EquiPoseNet
+    from equipose.train.network.model import EquiPoseNet
 
     torch.manual_seed(int(seed))
     try:
@@ -236,7 +236,7 @@ def export_checkpoint(checkpoint, path, *, category: str | None = None, scale: f
     """Export a training checkpoint (``equipose.train.checkpoint`` format) with its category, scale, symmetry,
     calibration, training summary and metrics. ``category`` / ``scale`` (metres per model unit) override the
     checkpoint's (the training summary then records the original as ``trained_category`` / ``trained_scale``)."""
-    from equipose.train.checkpoint import model_from_checkpoint
+    from equipose.train.fitting.checkpoint import model_from_checkpoint
 
     checkpoint = pathlib.Path(checkpoint)
     if not checkpoint.is_file():
@@ -253,7 +253,7 @@ def export_checkpoint(checkpoint, path, *, category: str | None = None, scale: f
         training["trained_category"] = ckpt.get("category")
     if scale is not None and scale != ckpt.get("scale"):
         training["trained_scale"] = ckpt.get("scale")
-    from equipose.train.tabletop import TABLETOP
+    from equipose.train.data.tabletop import TABLETOP
     category = category or ckpt.get("category", "unknown")               # e.g. a cup network exported as "mug"
     spec = TABLETOP.get(category)
     kwargs.setdefault("handle", (1.0, 0.0, 0.0) if spec is not None and spec.handle else None)

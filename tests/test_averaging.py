@@ -4,9 +4,9 @@ import pytest
 torch = pytest.importorskip("torch")
 
 from equipose.core.errors import ConfigError  # noqa: E402
-from equipose.train.averaging import average_checkpoints, main  # noqa: E402
-from equipose.train.checkpoint import load_checkpoint, model_from_checkpoint, save_checkpoint  # noqa: E402
-from equipose.train.model import EquiPoseNet  # noqa: E402
+from equipose.train.lanes.averaging import average_checkpoints, main  # noqa: E402
+from equipose.train.fitting.checkpoint import load_checkpoint, model_from_checkpoint, save_checkpoint  # noqa: E402
+from equipose.train.network.model import EquiPoseNet  # noqa: E402
 
 
 def _snapshot(path, seed, step, category="chair"):
@@ -56,7 +56,7 @@ def test_copies_of_one_step_count_once(tmp_path):
 
 def test_snapshot_copier_keeps_one_copy_per_saved_step(tmp_path):
     import os
-    from equipose.train.snapshots import SnapshotCopier
+    from equipose.train.lanes.snapshots import SnapshotCopier
     state, dest = tmp_path / "state", tmp_path / "snaps"
     (state / "m").mkdir(parents=True)
     copier = SnapshotCopier(["m", "absent"], dest, state_dir=state)

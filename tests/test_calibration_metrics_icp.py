@@ -4,8 +4,8 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from equipose.core.geometry import random_rotations, rotation_angle_deg
-from equipose.train.calibration import (apply_calibration, calibrate_offsets, frame_with_axis, ransac_rotation,
-                                        so3_mean)
+from equipose.train.evaluation.calibration import (apply_calibration, calibrate_offsets, frame_with_axis,
+                                                   ransac_rotation, so3_mean)
 from equipose.eval.metrics import rotation_errors, summarize, translation_errors
 
 
@@ -105,7 +105,7 @@ def _tripod(rng, n):
 
 @pytest.mark.parametrize("bidirectional", [False, True])
 def test_icp60_recovers_known_rotation(bidirectional):
-    from equipose.train.icp import icp60
+    from equipose.train.evaluation.icp import icp60
     rng = np.random.default_rng(0)
     tmpl = _tripod(rng, 500)
     for seed in (11, 12):
@@ -119,7 +119,7 @@ def test_icp60_recovers_known_rotation(bidirectional):
 
 def test_icp60_outputs_follow_the_model_contract():
     """icp60_outputs: shapes of the network's outputs; its best-scored hypothesis is icp60's answer, per batch item."""
-    from equipose.train.icp import icp60, icp60_outputs
+    from equipose.train.evaluation.icp import icp60, icp60_outputs
     rng = np.random.default_rng(1)
     tmpl = _tripod(rng, 400)
     obs = np.stack([tmpl[rng.permutation(400)[:256]] @ random_rotations(1, seed=s)[0].T + [0.1, 0, 0.2]
@@ -139,8 +139,8 @@ def test_calibrate_model_rotated_inputs_recover_offset():
     frame is offset by δR from the category frame yields δR back (within 1°)."""
     torch = pytest.importorskip("torch")
     from equipose.core.geometry import random_rotations, rotation_angle_deg
-    from equipose.train.icp import kabsch
-    from equipose.train.inference import calibrate_model
+    from equipose.train.evaluation.icp import kabsch
+    from equipose.train.evaluation.inference import calibrate_model
 
     rng = np.random.default_rng(3)
     ref = rng.normal(size=(64, 3)) * [0.3, 0.2, 0.1]                       # category-frame reference cloud
@@ -161,7 +161,7 @@ def test_calibrate_model_rotated_inputs_recover_offset():
 
 
 def test_metrics_for_metadata_keeps_our_row_plain_or_refined():
-    from equipose.train.evaluate import metrics_for_metadata
+    from equipose.train.evaluation.evaluate import metrics_for_metadata
     from equipose.eval.metrics import ROW_KEYS
     row = {k: 1.0 for k in ROW_KEYS[1:]}
     for ours in ("equipose", "equipose+icp5"):

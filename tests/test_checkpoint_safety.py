@@ -7,7 +7,7 @@ import pytest
 torch = pytest.importorskip("torch")
 
 from equipose import errors  # noqa: E402
-from equipose.train.checkpoint import load_checkpoint  # noqa: E402
+from equipose.train.fitting.checkpoint import load_checkpoint  # noqa: E402
 
 MARK = "equipose-pickle-ran"
 
@@ -49,7 +49,7 @@ def test_shipped_training_state_loads_with_weights_only():
 def test_optimizer_state_follows_the_parameters_device():
     """A resumed Adam's moments load on the CPU; optimizer_to moves them (not the step counters) to the device."""
     import torch
-    from equipose.train.checkpoint import optimizer_to
+    from equipose.train.fitting.checkpoint import optimizer_to
     w = torch.nn.Parameter(torch.ones(3))
     opt = torch.optim.Adam([w], lr=0.1)
     w.sum().backward()

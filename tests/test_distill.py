@@ -9,9 +9,9 @@ from scipy.spatial.transform import Rotation  # noqa: E402
 from equipose.core import icosahedral  # noqa: E402
 from equipose.cli import main  # noqa: E402
 from equipose.errors import ConfigError  # noqa: E402
-from equipose.train.checkpoint import load_checkpoint  # noqa: E402
-from equipose.train.distill import canonical_clouds, teacher_targets  # noqa: E402
-from equipose.train.losses import distillation_loss, icp_drift, reachable_targets  # noqa: E402
+from equipose.train.fitting.checkpoint import load_checkpoint  # noqa: E402
+from equipose.train.fitting.distill import canonical_clouds, teacher_targets  # noqa: E402
+from equipose.train.fitting.losses import distillation_loss, icp_drift, reachable_targets  # noqa: E402
 
 
 ANCHORS = torch.tensor(icosahedral.ANCHORS, dtype=torch.float32)                   # [60, 3, 3]
@@ -135,10 +135,10 @@ def test_selection_term_prefers_the_best_hypothesis():
 
 def _teacher_and_views(tmp_path, data_root, category: str, limit: int, **ckpt):
     """A random tiny complete-shape teacher checkpoint, rendered training views (2 each) and complete clouds."""
-    from equipose.train.checkpoint import save_checkpoint
-    from equipose.train.data import make_dataset
-    from equipose.train.distill import complete_clouds
-    from equipose.train.model import EquiPoseNet
+    from equipose.train.fitting.checkpoint import save_checkpoint
+    from equipose.train.data.datasets import make_dataset
+    from equipose.train.fitting.distill import complete_clouds
+    from equipose.train.network.model import EquiPoseNet
     torch.manual_seed(0)
     teacher = tmp_path / "teacher.pt"
     save_checkpoint(teacher, EquiPoseNet("tiny", partial=False), category=category, scale=2.0, step=0, **ckpt)
@@ -164,8 +164,8 @@ def test_teacher_targets_follow_the_render_pose(tmp_path, data_root):
     assert np.allclose(rel_t, rel_r, atol=1e-5)
     again = teacher_targets(teacher, ds, clouds, refine=2, cache_file=tmp_path / "t.npz", log=lambda *_: None)
     assert np.array_equal(again["rotations"], tt["rotations"])                   # cached
-    from equipose.train.checkpoint import save_checkpoint
-    from equipose.train.model import EquiPoseNet
+    from equipose.train.fitting.checkpoint import save_checkpoint
+    from equipose.train.network.model import EquiPoseNet
     with pytest.raises(ConfigError, match="complete-shape"):
         student = tmp_path / "student.pt"
         save_checkpoint(student, EquiPoseNet("tiny", partial=True), category="airplane", scale=2.0, step=0)
@@ -224,7 +224,7 @@ def test_cli_distills_a_partial_model(tmp_path, data_root, capsys):
 
 def test_rotate_views_turns_views_and_targets_alike():
     """Every target shape posed by the turned pose lies exactly on the turned view; the centroid stays put."""
-    from equipose.train.augment import rotate_views
+    from equipose.train.data.augment import rotate_views
     y = torch.randn(4, 50, 3, dtype=torch.float64)                              # canonical shapes
     R = torch.as_tensor(Rotation.random(4, random_state=1).as_matrix())
     t = torch.randn(4, 3, dtype=torch.float64) + torch.tensor([0.0, 0.0, 5.0])
@@ -239,7 +239,7 @@ def test_rotate_views_turns_views_and_targets_alike():
 
 
 def test_distillation_term_weights_are_checked():
-    from equipose.train.trainer import TrainConfig
+    from equipose.train.fitting.config import TrainConfig
     with pytest.raises(ConfigError, match="give --teacher"):
         TrainConfig.from_sources(mode="partial", drift_weight=1.0)
     with pytest.raises(ConfigError, match="drift_iters must be ≥ 1"):

@@ -16,8 +16,8 @@ from equipose.export import export_checkpoint, export_model, export_random_model
 from equipose.core.metadata import REQUIRED_KEYS, decode_metadata  # noqa: E402
 from equipose.core.presets import get_preset  # noqa: E402
 from equipose.testing import assert_equivariant, onnx_model_fn  # noqa: E402
-from equipose.train.checkpoint import save_checkpoint  # noqa: E402
-from equipose.train.model import EquiPoseNet  # noqa: E402
+from equipose.train.fitting.checkpoint import save_checkpoint  # noqa: E402
+from equipose.train.network.model import EquiPoseNet  # noqa: E402
 
 OUTPUTS = ("canonical_shape", "hypothesis_rotations", "hypothesis_translations", "hypothesis_scores")
 # Every op the exporter may emit. Deliberately absent: Loop, Scan, If, GatherND, GatherElements, custom domains.
@@ -303,7 +303,7 @@ def test_refined_calibration_round_trip(tiny_ckpt, tmp_path, rng):
 
     from equipose import PoseEstimator
     from equipose.export import update_metadata
-    from equipose.train.calibration import calibrate_onnx_refined
+    from equipose.train.evaluation.calibration import calibrate_onnx_refined
     path = tmp_path / "m.onnx"
     shutil.copy(tiny_ckpt[1], path)
     assert PoseEstimator(path, threads=1).refine == 0                        # no refined calibration: off

@@ -7,7 +7,7 @@ torch = pytest.importorskip("torch")
 from equipose.core.presets import count_params, get_preset  # noqa: E402
 from equipose.testing import assert_equivariant, torch_layer_fn, torch_model_fn  # noqa: E402
 from equipose.train import EquiPoseNet, chamfer_min_of_60_loss  # noqa: E402
-from equipose.train.layers import InterSO3Conv, IntraSO3Conv, SeparableSO3Block  # noqa: E402
+from equipose.train.network.layers import InterSO3Conv, IntraSO3Conv, SeparableSO3Block  # noqa: E402
 
 
 def _cloud(rng, b, n):
@@ -116,7 +116,7 @@ def test_canonical_isotropy_flags_a_collapsed_blob():
     import numpy as np
     import torch
 
-    from equipose.train.trainer import canonical_isotropy
+    from equipose.train.fitting.trainer import canonical_isotropy
 
     class Fake(torch.nn.Module):
         def __init__(self, stds):
@@ -133,7 +133,7 @@ def test_canonical_isotropy_flags_a_collapsed_blob():
 
 
 def test_shared_neighbourhoods_match_per_layer_knn(rng):
-    from equipose.train.layers import knn_indices, shared_neighbourhoods
+    from equipose.train.network.layers import knn_indices, shared_neighbourhoods
     cfg = get_preset("edge")
     x = torch.from_numpy(_cloud(rng, 2, cfg.num_points))
     shared = shared_neighbourhoods(x, cfg.layers)
@@ -146,7 +146,7 @@ def test_shared_neighbourhoods_match_per_layer_knn(rng):
 
 
 def test_knn_prefix_sharing_needs_and_gets_ordered_search(rng):
-    from equipose.train.layers import knn_indices, shared_neighbourhoods
+    from equipose.train.network.layers import knn_indices, shared_neighbourhoods
     cfg = get_preset("edge")                                                    # support 128: k = 12 and k = 16
     x = torch.from_numpy(_cloud(rng, 1, cfg.num_points))
     shared = shared_neighbourhoods(x, cfg.layers)
@@ -158,8 +158,8 @@ def test_knn_prefix_sharing_needs_and_gets_ordered_search(rng):
 
 
 def test_axial_symmetry_loss_prefers_the_symmetry_axis_on_z():
-    from equipose.train.losses import axial_symmetry_loss
-    from equipose.train.shapes import cylinder_surface
+    from equipose.train.fitting.losses import axial_symmetry_loss
+    from equipose.train.data.shapes import cylinder_surface
     rng = np.random.default_rng(0)
     tin = torch.tensor(cylinder_surface(0.3, 0.1, 256, rng)[None], dtype=torch.float32)   # squat, axis on z
     sideways = tin[..., [2, 1, 0]].clone().requires_grad_(True)                           # axis on x

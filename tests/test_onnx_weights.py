@@ -8,8 +8,8 @@ import torch
 
 from equipose.errors import ConfigError
 from equipose.core.geometry import farthest_point_order
-from equipose.train.checkpoint import model_from_checkpoint
-from equipose.train.onnx_weights import checkpoint_from_onnx
+from equipose.train.fitting.checkpoint import model_from_checkpoint
+from equipose.train.network.onnx_weights import checkpoint_from_onnx
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 OUTPUTS = ("canonical_shape", "hypothesis_rotations", "hypothesis_translations", "hypothesis_scores")
@@ -35,7 +35,7 @@ def _max_diff(model, onnx_path, x):
 @pytest.mark.parametrize("partial", [False, True])
 def test_recovered_random_model_matches_its_export(tmp_path, partial):
     from equipose.export.onnx_export import export_model
-    from equipose.train.model import EquiPoseNet
+    from equipose.train.network.model import EquiPoseNet
     torch.manual_seed(3)
     net = EquiPoseNet("edge", partial=partial)
     with torch.no_grad():                        # trained-like weights: no zero biases, non-trivial BatchNorm statistics
@@ -90,7 +90,7 @@ def test_tracked_state_folders_are_complete():
 
 
 def test_seed_and_one_slice_accumulate_steps(tmp_path, data_root):
-    from equipose.train import long_runs
+    from equipose.train.lanes import long_runs
     state = tmp_path / "repo" / "train" / "state"
     long_runs.seed_model("bottle-complete", state_dir=state, data_root=data_root)
     before = json.loads((state / "bottle-complete" / "manifest.json").read_text())

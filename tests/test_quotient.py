@@ -8,7 +8,8 @@ from equipose.core import icosahedral as I  # noqa: E402
 from equipose.core.presets import count_params, get_preset, total_macs  # noqa: E402
 from equipose.testing import assert_equivariant, torch_layer_fn, torch_model_fn  # noqa: E402
 from equipose.train import EquiPoseNet  # noqa: E402
-from equipose.train.quotient import QuotientBlock, QuotientInterConv, QuotientIntraConv, lift_pairs  # noqa: E402
+from equipose.train.network.quotient import (QuotientBlock, QuotientInterConv, QuotientIntraConv,  # noqa: E402
+                                             lift_pairs)
 
 
 def _cloud(rng, b, n):

@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 
 from equipose.preprocess import crop_points
-from equipose.train.render import (camera_matrix, depth_to_uint16, rasterize_mesh, render_frame, splat_surfels,
+from equipose.train.data.render import (camera_matrix, depth_to_uint16, rasterize_mesh, render_frame, splat_surfels,
                                    surfels_from_points, render_views, RenderSettings)
 
 K = camera_matrix()
@@ -113,7 +113,7 @@ def test_render_views_seeded_and_in_frame():
 
 
 def test_mesh_readers_and_render(data_root):
-    from equipose.train.meshio import read_mesh
+    from equipose.train.data.meshio import read_mesh
     mug = data_root / "ocrtoc_scanned_household" / "mug" / "visual.ply"          # ascii PLY
     cup = data_root / "ocrtoc_scanned_household" / "blue_cup" / "visual.ply"     # binary PLY
     can = data_root / "ycb_meshes_pybullet" / "YcbMasterChefCan" / "textured_simple_reoriented.obj"
@@ -136,7 +136,7 @@ def test_mesh_readers_and_render(data_root):
 
 def test_partial_cache_renders_the_same_views_on_several_workers(data_root, tmp_path):
     """Views are seeded per instance, so the cache does not depend on how many processes render it."""
-    from equipose.train.render_cache import ensure_cache
+    from equipose.train.data.render_cache import ensure_cache
     a = ensure_cache(data_root, "bottle", "test", cache_dir=tmp_path / "one", limit=3, views=2, progress=False,
                      log=lambda *_: None)
     b = ensure_cache(data_root, "bottle", "test", cache_dir=tmp_path / "two", limit=3, views=2, progress=False,

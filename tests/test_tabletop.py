@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 
 from equipose.errors import ConfigError
-from equipose.train.tabletop import TABLETOP, ensure_tabletop_cache, is_tabletop, tabletop_sources
+from equipose.train.data.tabletop import TABLETOP, ensure_tabletop_cache, is_tabletop, tabletop_sources
 
 
 def test_registry():
@@ -36,7 +36,7 @@ def test_can_sources_are_upright_and_metric(data_root):
 
 def test_mug_sources_have_their_handle_along_x(data_root):
     from equipose.core.handles import fit_handle
-    from equipose.train.modelnet import category_symmetry
+    from equipose.train.data.modelnet import category_symmetry
     train, test = tabletop_sources(data_root, "mug", "train"), tabletop_sources(data_root, "mug", "test")
     assert len(train) >= 20 and len(test) >= 5                                  # the handled ModelNet cups + metric mugs
     assert category_symmetry("mug") == "continuous:z"                           # the network's; the handle stage fixes z
@@ -50,8 +50,8 @@ def test_mug_sources_have_their_handle_along_x(data_root):
 
 
 def test_tabletop_cache_layout(data_root, tmp_path):
-    from equipose.train.data import RenderedPartial
-    from equipose.train.render_cache import ensure_cache
+    from equipose.train.data.datasets import RenderedPartial
+    from equipose.train.data.render_cache import ensure_cache
     path = ensure_tabletop_cache(data_root, "bowl", "test", cache_dir=tmp_path, views=2, limit=3, progress=False,
                                  log=lambda *a: None)
     assert ensure_cache(data_root, "bowl", "test", cache_dir=tmp_path, views=2, limit=3, progress=False) == path
@@ -67,7 +67,7 @@ def test_tabletop_cache_layout(data_root, tmp_path):
 
 
 def test_icp_templates_are_metric_for_tabletop(data_root):
-    from equipose.train.evaluate import _icp_template_clouds
+    from equipose.train.evaluation.evaluate import _icp_template_clouds
     clouds = _icp_template_clouds(data_root, "cup")
     r = np.linalg.norm(clouds[0], axis=1).max()
     assert abs(r - np.mean(TABLETOP["cup"].radius_m)) < 1e-6
@@ -75,7 +75,7 @@ def test_icp_templates_are_metric_for_tabletop(data_root):
 
 
 def test_procedural_cylinders_are_closed_and_upright():
-    from equipose.train.shapes import cylinder_mesh, cylinder_proportions, cylinder_surface
+    from equipose.train.data.shapes import cylinder_mesh, cylinder_proportions, cylinder_surface
     rng = np.random.default_rng(0)
     p = cylinder_surface(0.05, 0.02, 4000, rng)
     rho = np.hypot(p[:, 0], p[:, 1])
@@ -97,7 +97,7 @@ def test_procedural_cylinders_are_closed_and_upright():
 
 
 def test_can_complete_clouds_add_cylinders(data_root):
-    from equipose.train.modelnet import load_complete, load_modelnet
+    from equipose.train.data.modelnet import load_complete, load_modelnet
     clouds, ids = load_complete(data_root, "can", "test", limit=5)
     bottles, _ = load_modelnet(data_root, "bottle", "test", limit=5)
     assert len(clouds) == 10 and ids[-1] == "cylinder_4" and np.array_equal(clouds[:5], bottles)

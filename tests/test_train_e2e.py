@@ -9,7 +9,7 @@ import pytest
 torch = pytest.importorskip("torch")
 
 from equipose.cli import main  # noqa: E402
-from equipose.train.checkpoint import load_checkpoint  # noqa: E402
+from equipose.train.fitting.checkpoint import load_checkpoint  # noqa: E402
 
 ROW_KEYS = {"method", "rot_mean_deg", "rot_median_deg", "trans_mean", "trans_median", "acc_5deg", "acc_5deg_005",
             "flip_rate"}

@@ -7,8 +7,8 @@ torch = pytest.importorskip("torch")
 from equipose.core.presets import get_preset  # noqa: E402
 from equipose.errors import ConfigError  # noqa: E402
 from equipose.train import EquiPoseNet  # noqa: E402
-from equipose.train.checkpoint import model_from_checkpoint, save_checkpoint  # noqa: E402
-from equipose.train.widen import widen_checkpoint, widen_model  # noqa: E402
+from equipose.train.fitting.checkpoint import model_from_checkpoint, save_checkpoint  # noqa: E402
+from equipose.train.network.widen import widen_checkpoint, widen_model  # noqa: E402
 
 OUTPUTS = ("canonical_shape", "hypothesis_rotations", "hypothesis_translations", "hypothesis_scores")
 

@@ -27,8 +27,8 @@ def torch_forward(est, checkpoint: str | None):
     """A callable model_points [B, N, 3] → outputs dict (numpy) with torch eager, plus a note on the weights."""
     import torch
 
-    from equipose.train.checkpoint import model_from_checkpoint
-    from equipose.train.model import EquiPoseNet
+    from equipose.train.fitting.checkpoint import model_from_checkpoint
+    from equipose.train.network.model import EquiPoseNet
 
     training = est.metadata.get("training") or {}
     if checkpoint:
@@ -63,7 +63,7 @@ def setup_torch(est, frame, box, *, threads: int, checkpoint: str | None = None)
 
 def setup_icp60(est, frame, box, *, threads: int, checkpoint: str | None = None) -> tuple:
     """Run ``est`` as ICP-60 against its own canonical shape (the template); returns ("", None)."""
-    from equipose.train.icp import icp60_outputs
+    from equipose.train.evaluation.icp import icp60_outputs
     template = est.run_model(_first_input(est, frame, box))["canonical_shape"][0].astype(np.float64)  # [M, 3]
     partial = bool(est.metadata["partial"])
     est.runner = lambda x: icp60_outputs(x, template, iters=30, bidirectional=not partial)

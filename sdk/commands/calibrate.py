@@ -50,12 +50,12 @@ def add_arguments(p) -> None:
 
 
 def _run_model(args) -> int:
-    from equipose.train.data import make_dataset
-    from equipose.train.modelnet import default_data_root
+    from equipose.train.data.datasets import make_dataset
+    from equipose.train.data.modelnet import default_data_root
     from equipose.runtime.estimator import PoseEstimator
     from equipose.export.onnx_export import update_metadata
 
-    from equipose.train.calibration import calibrate_onnx_refined
+    from equipose.train.evaluation.calibration import calibrate_onnx_refined
     est = PoseEstimator(args.model, threads=1, refine=0)
     category = args.category or est.category
     mode = args.mode or ("partial" if est.partial else "complete")
@@ -80,10 +80,10 @@ def _run_model(args) -> int:
 
 
 def run(args) -> int:
-    from equipose.train.checkpoint import model_from_checkpoint, save_checkpoint
-    from equipose.train.data import make_dataset
-    from equipose.train.modelnet import default_data_root
-    from equipose.train.inference import calibrate_model
+    from equipose.train.fitting.checkpoint import model_from_checkpoint, save_checkpoint
+    from equipose.train.data.datasets import make_dataset
+    from equipose.train.data.modelnet import default_data_root
+    from equipose.train.evaluation.inference import calibrate_model
     if args.model:
         return _run_model(args)
     model, ckpt = model_from_checkpoint(args.checkpoint)

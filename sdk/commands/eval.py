@@ -44,10 +44,11 @@ def add_arguments(p) -> None:
 
 
 def run(args) -> int:
-    from equipose.train.evaluate import evaluate, format_table, metrics_for_metadata, plot_percentiles, write_json
+    from equipose.train.evaluation.evaluate import (evaluate, format_table, metrics_for_metadata, plot_percentiles,
+                                                    write_json)
     import torch
     torch.set_num_threads(max(1, args.threads))
-    from equipose.train.evaluate import SUSPECT_TEST_INSTANCES
+    from equipose.train.evaluation.evaluate import SUSPECT_TEST_INSTANCES
     exclude = [e for e in args.exclude.split(",") if e]
     if args.exclude_suspects:
         exclude += list(SUSPECT_TEST_INSTANCES.get(args.category, ()))

@@ -22,13 +22,13 @@ def add_arguments(p) -> None:
 
 
 def run(args) -> int:
-    from equipose.train.modelnet import default_data_root
-    from equipose.train.render import CATEGORY_DISTANCE, RenderSettings
-    from equipose.train.render_cache import ensure_cache
+    from equipose.train.data.modelnet import default_data_root
+    from equipose.train.data.render import CATEGORY_DISTANCE, RenderSettings
+    from equipose.train.data.render_cache import ensure_cache
     if args.mesh:
         import pathlib
-        from equipose.train.cache_io import default_cache_dir
-        from equipose.train.render_cache import render_mesh_cache
+        from equipose.train.data.cache_io import default_cache_dir
+        from equipose.train.data.render_cache import render_mesh_cache
         name = pathlib.Path(args.mesh).parent.name
         out = args.out or (pathlib.Path(args.cache_dir) if args.cache_dir else default_cache_dir()) / f"mesh_{name}_v{args.views}.npz"
         print(f"cache: {render_mesh_cache(args.mesh, out, views=args.views, distance_m=args.distance_m, seed=args.seed)}")

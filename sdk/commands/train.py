@@ -79,7 +79,8 @@ def add_arguments(p) -> None:
 
 
 def run(args) -> int:
-    from equipose.train.trainer import TrainConfig, train
+    from equipose.train.fitting.config import TrainConfig
+    from equipose.train.fitting.trainer import train
     opts = {k: v for k, v in vars(args).items() if k not in ("config", "resume")}
     config = args.config
     if args.resume and not config and args.out and (pathlib.Path(args.out) / "config.json").is_file():

@@ -120,7 +120,7 @@ def test_refine_calibration_ignores_the_stages(tiny_model, tmp_path):
     """The ICP re-scoring calibration works in the learned frame: the handle / cylinder stages must not touch it."""
     pytest.importorskip("onnx")
     from equipose.export.onnx_export import update_metadata
-    from equipose.train.calibration import calibrate_onnx_refined
+    from equipose.train.evaluation.calibration import calibrate_onnx_refined
     staged = tmp_path / "staged.onnx"
     shutil.copy(tiny_model, staged)
     update_metadata(staged, handle={"direction": [1.0, 0.0, 0.0]}, shape_prior="cylinder")

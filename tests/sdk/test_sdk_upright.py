@@ -106,8 +106,8 @@ def test_instance_mode_refuses_the_up_prior(tiny_model, rng):
 
 def test_laptop_standing_on_a_table_known_answer(data_root):
     """Shipped ``laptop-partial`` on rendered laptops standing on a table: the plane gives up, the pose is found."""
-    from equipose.train.render_cache import modelnet_shapes
-    from equipose.train.scene import render_standing
+    from equipose.train.data.render_cache import modelnet_shapes
+    from equipose.train.data.scene import render_standing
     est = PoseEstimator("laptop-partial")
     rng = np.random.default_rng(0)
     errs = []

@@ -18,10 +18,11 @@ import pathlib
 import numpy as np
 import torch
 
-from equipose.train.checkpoint import model_from_checkpoint
-from equipose.train.data import collate
-from equipose.train.losses import distillation_loss, icp_drift, view_distance
-from equipose.train.trainer import TrainConfig, _datasets
+from equipose.train.fitting.checkpoint import model_from_checkpoint
+from equipose.train.data.datasets import collate
+from equipose.train.fitting.losses import distillation_loss, icp_drift, view_distance
+from equipose.train.fitting.config import TrainConfig
+from equipose.train.fitting.trainer import _datasets
 
 
 def main(argv=None) -> int:

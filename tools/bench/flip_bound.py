@@ -56,10 +56,10 @@ from equipose import PoseEstimator
 from equipose.core.geometry import farthest_point_order, rotation_angle_deg
 from equipose.eval.metrics import FLIP_DEG
 from equipose.runtime.hypotheses import HALF_TURNS
-from equipose.train.data import RenderedPartial
-from equipose.train.evaluate import _row, predict_onnx
-from equipose.train.modelnet import load_modelnet
-from equipose.train.render_cache import ensure_cache
+from equipose.train.data.datasets import RenderedPartial
+from equipose.train.evaluation.evaluate import _row, predict_onnx
+from equipose.train.data.modelnet import load_modelnet
+from equipose.train.data.render_cache import ensure_cache
 
 TURNS = np.stack([np.eye(3)] + [HALF_TURNS[a] for a in "xyz"])                  # [4, 3, 3]: I, half turns x, y, z
 GRID = (8, 8, 6)                      # occupancy cells along the category x, y, z
@@ -110,7 +110,7 @@ def train_point_classifier(ds, noise_rad, steps=2500, batch=32, seed=0):
     8×8×6 occupancy cells."""
     import torch
     from scipy.spatial.transform import Rotation
-    from equipose.train.turn_classifier import PointSetScore
+    from equipose.train.fitting.turn_classifier import PointSetScore
     rng = np.random.default_rng(seed)
     torch.manual_seed(seed)
     views = [ds.raw(i) for i in range(len(ds))]

@@ -43,8 +43,8 @@ from equipose.core.geometry import farthest_point_order, rotation_angle_deg
 from equipose.runtime.hypotheses import HALF_TURNS
 from equipose.runtime.refine import icp_multi
 from equipose.runtime.visibility import view_residuals
-from equipose.train.distill import complete_clouds
-from equipose.train.modelnet import default_data_root
+from equipose.train.fitting.distill import complete_clouds
+from equipose.train.data.modelnet import default_data_root
 from paired_views import rendered_views     # tools/bench: the same evenly spaced rendered views
 
 OBSERVED_POINTS = 1024

@@ -13,8 +13,8 @@ import numpy as np
 
 from equipose import PoseEstimator
 from equipose.eval.metrics import rotation_errors
-from equipose.train.evaluate import SUSPECT_TEST_INSTANCES, _instance_names, test_dataset
-from equipose.train.data import default_data_root
+from equipose.train.evaluation.evaluate import SUSPECT_TEST_INSTANCES, _instance_names, test_dataset
+from equipose.train.data.datasets import default_data_root
 
 
 def main(argv=None) -> int:

@@ -14,7 +14,7 @@ import numpy as np, sys
 from scipy.spatial import cKDTree
 from equipose import PoseEstimator
 from equipose.core.geometry import rotation_angle_deg as ang
-from equipose.train.evaluate import test_dataset
+from equipose.train.evaluation.evaluate import test_dataset
 from equipose.core.handles import turn_about_z  # rotation about +z
 name, cat, N = sys.argv[1], sys.argv[2], int(sys.argv[3])
 ds = test_dataset("/work/shared/data", cat, "partial", 256, cache_dir="/work/main/data_cache")

@@ -9,9 +9,9 @@ import time
 
 import numpy as np
 
-from equipose.train.modelnet import default_data_root, load_modelnet
-from equipose.train.meshio import read_mesh, read_modelnet_txt
-from equipose.train.render import CATEGORY_DISTANCE, RenderSettings, render_views, surfels_from_points
+from equipose.train.data.modelnet import default_data_root, load_modelnet
+from equipose.train.data.meshio import read_mesh, read_modelnet_txt
+from equipose.train.data.render import CATEGORY_DISTANCE, RenderSettings, render_views, surfels_from_points
 
 p = argparse.ArgumentParser()
 p.add_argument("--frames", type=int, default=20)

@@ -12,10 +12,10 @@ import time
 import numpy as np
 import torch
 
-from equipose.train.data import ModelNetComplete, collate
-from equipose.train.modelnet import default_data_root
-from equipose.train.losses import chamfer_min_of_60_loss
-from equipose.train.model import EquiPoseNet
+from equipose.train.data.datasets import ModelNetComplete, collate
+from equipose.train.data.modelnet import default_data_root
+from equipose.train.fitting.losses import chamfer_min_of_60_loss
+from equipose.train.network.model import EquiPoseNet
 
 p = argparse.ArgumentParser()
 p.add_argument("--presets", nargs="+", default=["tiny", "small", "paper"])

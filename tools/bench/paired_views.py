@@ -16,9 +16,9 @@ import numpy as np
 
 from equipose import PoseEstimator
 from equipose.core.geometry import rotation_angle_deg
-from equipose.train.data import RenderedPartial
-from equipose.train.modelnet import default_data_root
-from equipose.train.render_cache import ensure_cache
+from equipose.train.data.datasets import RenderedPartial
+from equipose.train.data.modelnet import default_data_root
+from equipose.train.data.render_cache import ensure_cache
 
 
 def rendered_views(category: str, split: str, n: int = 0, views: int | None = None) -> tuple:

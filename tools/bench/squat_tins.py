@@ -17,8 +17,8 @@ import numpy as np
 
 def render_cylinders(count: int, views: int, seed: int):
     """[(points [P, 3] metres camera frame, R, h/d)] of ``count`` procedural cylinders × ``views``."""
-    from equipose.train.render import RenderSettings, render_views
-    from equipose.train.shapes import cylinder_mesh, cylinder_proportions
+    from equipose.train.data.render import RenderSettings, render_views
+    from equipose.train.data.shapes import cylinder_mesh, cylinder_proportions
     out = []
     rng = np.random.default_rng([seed, 1])
     for r, h in cylinder_proportions(count, seed=[seed, 2]):

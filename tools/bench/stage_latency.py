@@ -21,7 +21,7 @@ import sys
 import numpy as np
 
 from equipose import PoseEstimator
-from equipose.train.evaluate import test_dataset
+from equipose.train.evaluation.evaluate import test_dataset
 
 CASES = (("cup-tabletop", "cup", "partial", False), ("car-partial", "car", "partial", False),
          ("airplane-complete", "airplane", "complete", False), ("car-complete", "car", "complete", False),

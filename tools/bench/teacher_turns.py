@@ -52,9 +52,9 @@ import numpy as np
 
 from equipose.core.geometry import farthest_point_order, rotation_angle_deg
 from equipose.runtime.hypotheses import HALF_TURNS
-from equipose.train.distill import complete_clouds
-from equipose.train.trainer import TrainConfig
-from equipose.train.turn_classifier import teacher_poses, turn_labels
+from equipose.train.fitting.distill import complete_clouds
+from equipose.train.fitting.config import TrainConfig
+from equipose.train.fitting.turn_classifier import teacher_poses, turn_labels
 
 TURNS = np.stack([np.eye(3)] + [HALF_TURNS[a] for a in "xyz"])                   # [4, 3, 3]: I, x, y, z
 
@@ -115,7 +115,7 @@ def held_out_classifier(X, folds=5, steps=1500, points=128, seed=0) -> tuple:
     """(pick [I], lead [I] logits): a PointSetScore trained on the other folds' teacher frames (target: upright)."""
     import torch
     from scipy.spatial.transform import Rotation
-    from equipose.train.turn_classifier import PointSetScore
+    from equipose.train.fitting.turn_classifier import PointSetScore
     rng = np.random.default_rng(seed)
     torch.manual_seed(seed)
 

@@ -27,8 +27,8 @@ from tqdm import tqdm
 
 from equipose import PoseEstimator
 from equipose.core.geometry import rotation_angle_deg
-from equipose.train.render_cache import modelnet_shapes
-from equipose.train.scene import render_standing
+from equipose.train.data.render_cache import modelnet_shapes
+from equipose.train.data.scene import render_standing
 
 CACHE_VERSION = 1
 
@@ -87,8 +87,8 @@ def measure_icp(data: dict, root, category: str, model: str, seed: int = 0) -> l
     from equipose.core.icosahedral import ANCHORS
     from equipose.preprocess import find_support_plane
     from equipose.runtime.upright import resolve_plane_up, upright_icp
-    from equipose.train.evaluate import _icp_template_clouds
-    from equipose.train.icp import icp60
+    from equipose.train.evaluation.evaluate import _icp_template_clouds
+    from equipose.train.evaluation.icp import icp60
     est = PoseEstimator(model)
     clouds = _icp_template_clouds(root, category)
     pick = np.random.default_rng(seed).choice(len(clouds), size=3, replace=False)

@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Continue tracked models (train/state/NAME) on a lent GPU machine, then bring the checkpoints back. Nothing depends
-# on it: the same folders train on the CPU with `python -m equipose.train.long_runs run`.
+# on it: the same folders train on the CPU with `python -m equipose.train.lanes.long_runs run`.
 #
 #   tools/release/gpu_teachers.sh pack NAME...            # here: copy the data these models need into gpu_pack/
 #   tools/release/gpu_teachers.sh remote MINUTES NAME...  # there (the device tool's `run`, carry ["gpu_pack"]):
@@ -56,7 +56,7 @@ case "$cmd" in
     export EQUIPOSE_RENDER_WORKERS=${EQUIPOSE_RENDER_WORKERS:-$(nproc)}   # partial views render once, in parallel
     $PY -c "import torch; print('torch', torch.__version__, 'cuda', torch.cuda.is_available())"
     for NAME in "$@"; do
-      $PY -m equipose.train.long_runs slice "$NAME" --minutes "$MINUTES" --state-dir train/state \
+      $PY -m equipose.train.lanes.long_runs slice "$NAME" --minutes "$MINUTES" --state-dir train/state \
           --cache-dir /tmp/equipose_cache ${BATCH:+--batch-size "$BATCH"} 2>&1 | tr '\r' '\n' | grep -v "it/s" || true
       if [ -n "${OUT:-}" ]; then
         mkdir -p "$OUT/$NAME"

@@ -15,7 +15,7 @@ __all__ = ["PIPELINE_VERSION", "default_cache_dir", "keyed_cache_path", "write_p
 
 
 def default_cache_dir() -> pathlib.Path:
-    return pathlib.Path(__file__).resolve().parents[1] / "data_cache"
+    return pathlib.Path(__file__).resolve().parents[2] / "data_cache"            # <repository>/data_cache
 
 
 # Version of the render → crop pipeline whose output a cache holds; part of every cache key. Bump it whenever the

@@ -1,6 +1,7 @@
 """Training and evaluation datasets: ModelNet40 1024-point complete clouds and cached rendered partial-depth clouds.
 
-The shape files are read by ``equipose.train.modelnet``; partial views come from ``equipose.train.render_cache``.
+The shape files are read by ``equipose.train.data.modelnet``; partial views come from
+``equipose.train.data.render_cache``.
 
 Convention:
     Files: ``<root>/modelnet40_npy1024/<cat>/{train,test}/<cat>_NNNN.npy``, float32 [1024, 3], centred, max radius 1,
@@ -21,7 +22,7 @@ import numpy as np
 
 from equipose.core.errors import ConfigError
 from equipose.core.geometry import farthest_point_order, random_rotations
-from equipose.train.modelnet import (MODELNET_SCALE, TEST_ROTATIONS, TEST_SEED, category_symmetry,  # noqa: F401
+from equipose.train.data.modelnet import (MODELNET_SCALE, TEST_ROTATIONS, TEST_SEED, category_symmetry,  # noqa: F401
                                      default_data_root, load_complete, load_modelnet)
 
 __all__ = ["ModelNetComplete", "RenderedPartial", "make_dataset", "collate"]
@@ -81,10 +82,11 @@ class ModelNetComplete:
 
 
 class RenderedPartial:
-    """Rendered partial-depth samples from a cache written by ``equipose.train.render.render_dataset``.
+    """Rendered partial-depth samples from a cache written by ``equipose.train.data.render.render_dataset``.
 
-    The cache (``.npz``) holds concatenated back-projected points (metres, camera frame, through ``equipose.preprocess``),
-    per-view offsets, GT poses (metres) and per-instance bbox diagonals. Training re-draws the FPS start per access.
+    The cache (``.npz``) holds concatenated back-projected points (metres, camera frame, through
+    ``equipose.preprocess``), per-view offsets, GT poses (metres) and per-instance bbox diagonals. Training re-draws
+    the FPS start per access.
     """
 
     def __init__(self, cache_path, num_points: int, train: bool, seed: int = TEST_SEED, limit: int | None = None):
@@ -113,7 +115,8 @@ class RenderedPartial:
         idx = farthest_point_order(pts, self.num_points, start=start)
         x = pts[idx]                                                                   # [N, 3]
         R, t = self.R[i], self.t[i] / self.scale
-        return {"points": x.astype(np.float32), "rotation": R, "translation": t, "diag": float(self.diag_m[i] / self.scale),
+        return {"points": x.astype(np.float32), "rotation": R, "translation": t,
+                "diag": float(self.diag_m[i] / self.scale),
                 "canonical": ((x - t) @ R).astype(np.float32), "instance": int(self.instance[i])}
 
     def __getitem__(self, i: int) -> dict:
@@ -132,7 +135,7 @@ def make_dataset(root, category: str, mode: str, split: str, num_points: int, tr
     if mode == "complete":
         return ModelNetComplete(root, category, split, num_points, train, limit=limit)
     if mode == "partial":
-        from equipose.train.render_cache import ensure_cache
+        from equipose.train.data.render_cache import ensure_cache
         path = ensure_cache(root, category, split, cache_dir=cache_dir, limit=limit, **(render_opts or {}))
         return RenderedPartial(path, num_points, train)
     raise ConfigError(f"mode must be 'complete' or 'partial', got {mode!r}")

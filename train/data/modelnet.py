@@ -29,7 +29,7 @@ def default_data_root() -> pathlib.Path:
     env = os.environ.get("EQUIPOSE_DATA")
     if env:
         return pathlib.Path(env)
-    return pathlib.Path(__file__).resolve().parents[1].parent / "shared" / "data"
+    return pathlib.Path(__file__).resolve().parents[3] / "shared" / "data"     # beside the repository
 
 
 def category_symmetry(category: str) -> str:
@@ -56,7 +56,7 @@ def load_modelnet(root, category: str, split: str, limit: int | None = None) -> 
     return np.stack([np.load(f).astype(np.float32) for f in files]), [f.stem for f in files]
 
 
-# Complete-shape categories built from another ModelNet category plus procedural closed cylinders (train/shapes.py):
+# Complete-shape categories built from another ModelNet category plus procedural closed cylinders (``shapes``):
 # ``can`` = ModelNet bottles (nearly all taller than wide) + cylinders of every proportion, h/d 0.25–4.
 PROCEDURAL_COMPLETE = {"can": {"modelnet": "bottle", "cylinders": {"train": 200, "test": 40}},
                        "cylinder": {"modelnet": None, "cylinders": {"train": 400, "test": 40}}}   # cylinders only
@@ -71,7 +71,7 @@ def load_complete(root, category: str, split: str, limit: int | None = None) -> 
     spec = PROCEDURAL_COMPLETE.get(category)
     if spec is None:
         return load_modelnet(root, category, split, limit)
-    from equipose.train.shapes import cylinder_proportions, cylinder_surface
+    from equipose.train.data.shapes import cylinder_proportions, cylinder_surface
     if spec["modelnet"]:
         clouds, ids = load_modelnet(root, spec["modelnet"], split, limit)
     else:

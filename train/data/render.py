@@ -1,6 +1,6 @@
 """Partial-depth renderer: z-buffer rasterisation of triangle meshes and surfel splatting of point clouds, then the
 SDK's own depth → crop → points path (``equipose.preprocess.crop_points``). The seeded on-disk cache of rendered
-views is ``equipose.train.render_cache``.
+views is ``equipose.train.data.render_cache``.
 
 Convention:
     Camera: OpenCV pinhole (x right, y down, z forward), pixel centres at integer coordinates; default 640×480,
@@ -16,8 +16,8 @@ perspective-correct barycentric 1/z; surfels: ray-disc intersection) and the z-b
 
 Point-only shapes are splatted as two-sided oriented discs (surfels): normals from the file (dense ModelNet clouds)
 or, for the 1024-point clouds, by PCA of the 10 nearest neighbours; each disc's radius is ``radius_factor`` (1.0) ×
-the distance to its 4th nearest neighbour (capped at 1.5× the median), so neighbouring discs overlap and the front surface has no holes through
-which back surfaces could leak. Discs seen nearly edge-on (|n·ray| < 0.15) are skipped.
+the distance to its 4th nearest neighbour (capped at 1.5× the median), so neighbouring discs overlap and the front
+surface has no holes through which back surfaces could leak. Discs seen nearly edge-on (|n·ray| < 0.15) are skipped.
 """
 from __future__ import annotations
 
@@ -94,14 +94,16 @@ def rasterize_mesh(vertices: np.ndarray, faces: np.ndarray, K: np.ndarray, size=
             p = np.stack([px, py], -1).astype(np.float64)                       # [n, m, 2]
 
             def edge(p0, p1, q):
-                return (p1[..., 0] - p0[..., 0]) * (q[..., 1] - p0[..., 1]) - (p1[..., 1] - p0[..., 1]) * (q[..., 0] - p0[..., 0])
+                return ((p1[..., 0] - p0[..., 0]) * (q[..., 1] - p0[..., 1])
+                        - (p1[..., 1] - p0[..., 1]) * (q[..., 0] - p0[..., 0]))
 
             area = edge(a, b, c)                                                # [n, 1]
             ok_area = np.abs(area) > 1e-12
             area = np.where(ok_area, area, 1.0)
             l0, l1, l2 = edge(b, c, p) / area, edge(c, a, p) / area, edge(a, b, p) / area   # [n, m] barycentrics
             eps = -1e-9
-            inside = (l0 >= eps) & (l1 >= eps) & (l2 >= eps) & ok_area & (px <= u1[chunk, None]) & (py <= w1[chunk, None])
+            inside = ((l0 >= eps) & (l1 >= eps) & (l2 >= eps) & ok_area
+                      & (px <= u1[chunk, None]) & (py <= w1[chunk, None]))
             inv_z = l0 / z[chunk, 0, None] + l1 / z[chunk, 1, None] + l2 / z[chunk, 2, None]   # perspective-correct
             zz = 1.0 / np.where(inside, inv_z, 1.0)
             pix_all.append((py * W + px)[inside])
@@ -116,7 +118,8 @@ def surfels_from_points(points: np.ndarray, normals: np.ndarray | None = None, r
     """(normals [P, 3] unit, radii [P]) for surfel splatting of an object-frame cloud [P, 3].
 
     Normals: given ones (normalised) or PCA of the ``k_normal`` nearest neighbours (sign irrelevant: discs are
-    two-sided). Radii: ``radius_factor`` × distance to the ``k_radius``-th nearest neighbour, capped at ``clip`` × median.
+    two-sided). Radii: ``radius_factor`` × distance to the ``k_radius``-th nearest neighbour, capped at ``clip`` ×
+    median.
     """
     p = np.asarray(points, np.float64)
     tree = cKDTree(p)
@@ -191,7 +194,7 @@ class RenderSettings:
     distance: float = 1.8              # object-centre depth, in units of the object's max radius
     offset_var: tuple = (0.2, 0.2, 0.15)   # Σ diagonal (variances), same units squared
     max_points: int = 2048             # points kept per view in the cache (random subset of the crop)
-    crop_max_points: int = 4096        # equipose.preprocess grid thinning before that subset (explicit: part of the cache key)
+    crop_max_points: int = 4096        # equipose.preprocess grid thinning before that subset (part of the cache key)
 
 
 def sample_pose(rng: np.random.Generator, settings: RenderSettings, radius: float = 1.0) -> tuple:

@@ -1,5 +1,5 @@
-"""The rendered partial-view cache: render ModelNet (or tabletop) shapes once with ``equipose.train.render`` and keep
-the views on disk (``equipose.train.cache_io`` layout), keyed by every setting.
+"""The rendered partial-view cache: render ModelNet (or tabletop) shapes once with ``equipose.train.data.render``
+and keep the views on disk (``equipose.train.data.cache_io`` layout), keyed by every setting.
 
 Convention: views are seeded per instance — view k of instance i depends only on (seed, split, i); points are model
 units (file units / ``MODELNET_SCALE``), poses camera frame.
@@ -14,17 +14,17 @@ from dataclasses import asdict
 import numpy as np
 
 from equipose.core.errors import ConfigError
-from equipose.train.cache_io import keyed_cache_path, write_partial_cache
-from equipose.train.modelnet import MODELNET_SCALE, load_modelnet
-from equipose.train.render import CATEGORY_DISTANCE, RenderSettings, render_views, surfels_from_points
-from equipose.train.tabletop import ensure_tabletop_cache, is_tabletop
+from equipose.train.data.cache_io import keyed_cache_path, write_partial_cache
+from equipose.train.data.modelnet import MODELNET_SCALE, load_modelnet
+from equipose.train.data.render import CATEGORY_DISTANCE, RenderSettings, render_views, surfels_from_points
+from equipose.train.data.tabletop import ensure_tabletop_cache, is_tabletop
 
 __all__ = ["modelnet_shapes", "render_mesh_cache", "ensure_cache"]
 
 
 def modelnet_shapes(root, category: str, split: str, source: str, limit: int | None) -> list:
     """[(instance id, shape dict, complete points for the bbox)] in the normalised object frame (max radius 1)."""
-    from equipose.train.meshio import read_modelnet_txt
+    from equipose.train.data.meshio import read_modelnet_txt
     out = []
     if source == "npy1024":
         clouds, ids = load_modelnet(root, category, split, limit)
@@ -56,7 +56,7 @@ def render_mesh_cache(mesh_path, out_path, views: int = 10, distance_m: float = 
     ``ensure_cache``). The mesh is centred at its vertex mean (the object frame's origin); the object centre is at
     ``distance_m`` (+ offsets Σ scaled by the max vertex radius²). ``scale`` defaults to 2 × max radius (max radius
     0.5 model units)."""
-    from equipose.train.meshio import read_mesh
+    from equipose.train.data.meshio import read_mesh
     V, F = read_mesh(mesh_path)
     V = V - V.mean(0)
     radius = float(np.linalg.norm(V, axis=1).max())
@@ -88,17 +88,17 @@ def ensure_cache(root, category: str, split: str, cache_dir=None, limit: int | N
                  source: str = "npy1024", seed: int = 0, settings: RenderSettings | None = None,
                  progress: bool = True, log=print, workers: int | None = None) -> pathlib.Path:
     """Render (once) and cache the partial views of a ModelNet category split (tabletop categories: see
-    ``equipose.train.tabletop``); returns the ``.npz`` path.
+    ``equipose.train.data.tabletop``); returns the ``.npz`` path.
 
     The cache key hashes every setting, so a changed setting renders a new cache. Seeded per instance: view k of
     instance i depends only on (seed, split, i), so ``workers`` processes (default: ``EQUIPOSE_RENDER_WORKERS`` or 1)
     render the same views.
     """
     from tqdm import tqdm
-    if is_tabletop(category):     # cup / bowl / can: metric-scale tabletop data (equipose.train.tabletop)
+    if is_tabletop(category):     # cup / bowl / can: metric-scale tabletop data (equipose.train.data.tabletop)
         if settings is not None or source != "npy1024":
             raise ConfigError(f"tabletop category {category!r} renders with its own camera settings and sources "
-                              "(equipose.train.tabletop); do not pass settings/source")
+                              "(equipose.train.data.tabletop); do not pass settings/source")
         return ensure_tabletop_cache(root, category, split, cache_dir=cache_dir, views=views, seed=seed,
                                      progress=progress, log=log, limit=limit)
     settings = settings or RenderSettings(distance=CATEGORY_DISTANCE.get(category, 2.0))
@@ -126,7 +126,11 @@ def ensure_cache(root, category: str, split: str, cache_dir=None, limit: int | N
     for i, ((_, _, complete), views_i) in enumerate(zip(shapes, rendered)):
         diag = float(np.linalg.norm(complete.max(0) - complete.min(0)))
         for p, R, t in views_i:
-            pts.append(p); Rs.append(R); ts.append(t); diags.append(diag); inst.append(i)
+            pts.append(p)
+            Rs.append(R)
+            ts.append(t)
+            diags.append(diag)
+            inst.append(i)
     dt = time.perf_counter() - t0
     if not pts:
         raise ConfigError(f"no view of {category}/{split} could be rendered")

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from equipose.train.render import (RenderSettings, camera_matrix, depth_to_uint16, splat_surfels)
+from equipose.train.data.render import (RenderSettings, camera_matrix, depth_to_uint16, splat_surfels)
 
 __all__ = ["look_at_pose", "table_surfels", "render_standing"]
 

@@ -5,12 +5,12 @@ Convention:
     Object frame: the ModelNet40 category frame (up = +z, the symmetry axis), origin at the shape's centre. The metric
     meshes are z-up in their files (``shampoo`` lies along y and is turned up); they are centred at their vertex mean.
     Units: metres everywhere in the cache; the category's ``scale`` (metres per model unit) maps them to model units.
-    Camera: the renderer's OpenCV pinhole (``equipose.train.render``); the object centre is 0.5–1.4 m away (the
+    Camera: the renderer's OpenCV pinhole (``equipose.train.data.render``); the object centre is 0.5–1.4 m away (the
     range of a tabletop RGB-D camera), laterally offset by N(0, (0.12·d)²) per axis; rotations uniform on SO(3).
     Splits: train = ModelNet train shapes + every metric mesh / scan (+ ``cylinders`` procedural closed cylinders of
-    every proportion, ``train/shapes.py``); test = ModelNet test shapes only (their frame is
+    every proportion, ``train/data/shapes.py``); test = ModelNet test shapes only (their frame is
     the category frame, so they also serve calibration and the paper-style table). The metric meshes are never in test.
-    The cache layout is ``equipose.train.data.RenderedPartial``'s.
+    The cache layout is ``equipose.train.data.datasets.RenderedPartial``'s.
 """
 from __future__ import annotations
 
@@ -31,11 +31,11 @@ class TabletopSpec:
     scale: float                                   # metres per model unit (≈ 2 × largest max radius expected)
     modelnet: str                                  # ModelNet40 category resized to metric sizes
     radius_m: tuple                                # (min, max) max radius in metres drawn per ModelNet instance
-    meshes: tuple = ()                             # (path under data root, rotation "none" | "y_up") triangle meshes, metres
+    meshes: tuple = ()                             # triangle meshes (metres): (path under data root, "none" | "y_up")
     scans: tuple = ()                              # YCB-Video model points (points.xyz, metres), splatted as surfels
     train_limit: int | None = None                 # ModelNet train shapes used (None = all)
     test_limit: int | None = None                  # ModelNet test shapes used
-    cylinders: int = 0                             # procedural closed cylinders added to train (train/shapes.py)
+    cylinders: int = 0                             # procedural closed cylinders added to train (train/data/shapes.py)
     handle: bool = False                           # keep only cups with a handle, turned so it points to +x
     notes: str = ""
 
@@ -75,8 +75,8 @@ def is_tabletop(category: str) -> bool:
 def tabletop_sources(root, category: str, split: str, seed: int = 0) -> list:
     """[(name, shape dict in metres (object frame), complete points [P, 3] metres)] for one category and split."""
     from equipose.core.handles import align_handle
-    from equipose.train.meshio import read_mesh
-    from equipose.train.render import surfels_from_points
+    from equipose.train.data.meshio import read_mesh
+    from equipose.train.data.render import surfels_from_points
     if category not in TABLETOP:
         raise ConfigError(f"{category!r} is not a tabletop category ({', '.join(TABLETOP)})")
     spec, root = TABLETOP[category], pathlib.Path(root)
@@ -109,7 +109,7 @@ def tabletop_sources(root, category: str, split: str, seed: int = 0) -> list:
         n, r = surfels_from_points(p)
         out.append((rel, {"points": p, "normals": n, "radii": r}, p))
     if spec.cylinders:                                                   # tins and tubes of every proportion
-        from equipose.train.shapes import cylinder_mesh, cylinder_proportions, cylinder_surface
+        from equipose.train.data.shapes import cylinder_mesh, cylinder_proportions, cylinder_surface
         crng = np.random.default_rng([seed, 0, 78])
         for k, (r, h) in enumerate(cylinder_proportions(spec.cylinders, seed=[seed, 0, 79])):
             V, F = cylinder_mesh(r, h)
@@ -121,7 +121,7 @@ def modelnet_sources(root, category: str, split: str) -> tuple:
     """(ModelNet clouds [S, 1024, 3] at max radius 1, ids) of a tabletop category's split: its ModelNet source
     category, limited as the spec says; for a ``handle`` category only the cups with a handle, turned so it is +x."""
     from equipose.core.handles import align_handle, fit_handle
-    from equipose.train.modelnet import load_modelnet
+    from equipose.train.data.modelnet import load_modelnet
     spec = TABLETOP[category]
     clouds, ids = load_modelnet(root, spec.modelnet, split, spec.train_limit if split == "train" else spec.test_limit)
     if not spec.handle:
@@ -159,8 +159,8 @@ def ensure_tabletop_cache(root, category: str, split: str, cache_dir=None, views
     depends only on (seed, split, i). ``limit`` keeps the first K sources (tests, smoke runs).
     """
     from tqdm import tqdm
-    from equipose.train.cache_io import keyed_cache_path, write_partial_cache
-    from equipose.train.render import RenderSettings, render_views
+    from equipose.train.data.cache_io import keyed_cache_path, write_partial_cache
+    from equipose.train.data.render import RenderSettings, render_views
     spec = TABLETOP.get(category)
     if spec is None:
         raise ConfigError(f"{category!r} is not a tabletop category ({', '.join(TABLETOP)})")
@@ -184,7 +184,11 @@ def ensure_tabletop_cache(root, category: str, split: str, cache_dir=None, views
             var = (lateral * d / radius) ** 2
             settings = RenderSettings(distance=d / radius, offset_var=(var, var, (0.05 / radius) ** 2))
             for p, R, t in render_views(shape, rng, 1, settings, radius=radius):
-                pts.append(p); Rs.append(R); ts.append(t); diags.append(diag); inst.append(i)
+                pts.append(p)
+                Rs.append(R)
+                ts.append(t)
+                diags.append(diag)
+                inst.append(i)
     dt = time.perf_counter() - t0
     if not pts:
         raise ConfigError(f"no view of tabletop {category}/{split} could be rendered")

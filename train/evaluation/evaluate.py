@@ -4,8 +4,9 @@ Convention:
     Test samples come from ``data`` (``raw(i)``): points in metres (file units for ModelNet), GT pose x = R x_obj + t
     (metres), the instance's bbox diagonal. Rotation errors in degrees (symmetric categories: up-axis angle);
     translation errors ‖t̂ − t‖ divided by the bbox diagonal on ModelNet (as the paper), so "0.05" is 5 % of the
-    diagonal. The checkpoint path feeds the model exactly what ``PoseEstimator`` does (``equipose.preprocess.prepare_points``:
-    centroid-centred, scaled, FPS-ordered), then argmin-of-60 selection and the stored calibration.
+    diagonal. The checkpoint path feeds the model exactly what ``PoseEstimator`` does
+    (``equipose.preprocess.prepare_points``: centroid-centred, scaled, FPS-ordered), then argmin-of-60 selection and
+    the stored calibration.
     ICP-60 runs on the same points against 3 random training shapes (category frame, seeded); its row is the mean of
     the per-template rows, as the paper.
     JSON: ``{"category", "mode", "n", "rows": [{method, rot_mean_deg, rot_median_deg, trans_mean, trans_median,
@@ -24,10 +25,10 @@ from equipose.preprocess import prepare_points
 from equipose.core.errors import ConfigError
 from equipose.core.geometry import farthest_point_order
 
-from equipose.train.calibration import apply_calibration
-from equipose.train.data import ModelNetComplete, RenderedPartial
-from equipose.train.modelnet import default_data_root, load_modelnet
-from equipose.train.icp import icp60
+from equipose.train.evaluation.calibration import apply_calibration
+from equipose.train.data.datasets import ModelNetComplete, RenderedPartial
+from equipose.train.data.modelnet import default_data_root, load_modelnet
+from equipose.train.evaluation.icp import icp60
 from equipose.eval.metrics import rotation_errors, row_keys, summarize, translation_errors
 
 __all__ = ["test_dataset", "predict_checkpoint", "predict_onnx", "run_icp", "evaluate", "plot_percentiles",
@@ -40,7 +41,7 @@ def test_dataset(root, category: str, mode: str, num_points: int, limit: int | N
     if mode == "complete":
         return ModelNetComplete(root, category, "test", num_points, train=False, limit=limit)
     if mode == "partial":
-        from equipose.train.render_cache import ensure_cache
+        from equipose.train.data.render_cache import ensure_cache
         return RenderedPartial(ensure_cache(root, category, "test", cache_dir=cache_dir, limit=limit, views=views),
                                num_points, train=False)
     raise ConfigError(f"mode must be complete or partial, got {mode!r}")
@@ -54,13 +55,13 @@ def _instance_names(ds, root, category: str, mode: str, limit) -> list:
     """Instance names (``airplane_0629``) indexed like the samples' ``instance`` field."""
     if mode == "complete":
         return list(ds.ids)
-    from equipose.train.render_cache import modelnet_shapes
+    from equipose.train.data.render_cache import modelnet_shapes
     return [name for name, _, _ in modelnet_shapes(root, category, "test", "npy1024", limit)]
 
 
 def predict_checkpoint(model, ckpt: dict, samples: list, batch_size: int = 16) -> tuple:
     """Torch model on the SDK's model input. Returns (R [S, 3, 3], t [S, 3] metres), calibrated."""
-    from equipose.train.inference import predict_torch
+    from equipose.train.evaluation.inference import predict_torch
     scale = float(ckpt["scale"])
     preps = [prepare_points(s["points_m"], model.num_points, scale) for s in samples]
     R, t, _ = predict_torch(model, np.stack([p.model_points for p in preps]), batch_size)
@@ -82,7 +83,10 @@ def predict_onnx(model, samples: list, batch_size: int = 16, refine="auto", up: 
         chunk = samples[i:i + batch_size]
         ups = None if up is None else [s["rotation"][:, 2] for s in chunk]
         for r in est.predict_points_batch([s["points_m"] for s in chunk], up=ups):
-            Rs.append(r.rotation); ts.append(r.translation); seen.append(r.handle_visible); sym = r.symmetry
+            Rs.append(r.rotation)
+            ts.append(r.translation)
+            seen.append(r.handle_visible)
+            sym = r.symmetry
     return np.stack(Rs), np.stack(ts), est, None if est.handle is None else np.array(seen, bool), sym
 
 
@@ -97,15 +101,16 @@ def run_icp(samples: list, templates: list, bidirectional: bool, obs_points: int
             x = s["points_m"]
             x = x[farthest_point_order(x, min(obs_points, len(x)))]
             R, t, _ = icp60(x, tmpl, iters=iters, bidirectional=bidirectional)
-            Rs.append(R); ts.append(t)
+            Rs.append(R)
+            ts.append(t)
         out.append((np.stack(Rs), np.stack(ts)))
     return out
 
 
 def _cached_icp(samples: list, templates: list, cache_dir, *, log=print, **opts) -> list:
     """``run_icp`` with its poses kept on disk (the baseline does not depend on the model under test), keyed by the
-    exact observations, templates and options (``equipose.train.cache_io.keyed_cache_path``)."""
-    from equipose.train.cache_io import keyed_cache_path
+    exact observations, templates and options (``equipose.train.data.cache_io.keyed_cache_path``)."""
+    from equipose.train.data.cache_io import keyed_cache_path
     digest = hashlib.sha1()
     for a in [s["points_m"] for s in samples] + list(templates):
         digest.update(np.ascontiguousarray(a, np.float64).tobytes())
@@ -125,7 +130,7 @@ def _cached_icp(samples: list, templates: list, cache_dir, *, log=print, **opts)
 def _icp_template_clouds(root, category: str) -> list:
     """ICP-60 template candidates in the test samples' units: ModelNet train clouds (file units), or for tabletop
     categories the ModelNet source category resized to the middle of its metric radius range (metres)."""
-    from equipose.train.tabletop import TABLETOP, modelnet_sources
+    from equipose.train.data.tabletop import TABLETOP, modelnet_sources
     spec = TABLETOP.get(category)
     if spec is None:
         return list(load_modelnet(root, category, "train")[0])
@@ -155,7 +160,7 @@ def evaluate(*, category: str, mode: str, checkpoint=None, model_path=None, data
     if (refine is not None or copies is not None) and checkpoint is not None:
         raise ConfigError("--refine and --copies apply to an exported model (--model), the SDK's re-scoring")
     if checkpoint is not None:
-        from equipose.train.checkpoint import model_from_checkpoint
+        from equipose.train.fitting.checkpoint import model_from_checkpoint
         model, ckpt = model_from_checkpoint(checkpoint)
         num_points, symmetry, scale = model.num_points, ckpt["symmetry"], float(ckpt["scale"])
         if ckpt["category"] != category:
@@ -213,7 +218,9 @@ def evaluate(*, category: str, mode: str, checkpoint=None, model_path=None, data
         r_all, t_all = [], []
         for Ri, ti in per:
             rw, re, te = _row("icp60", Ri, ti, icp_set, symmetry, unsigned)
-            trows.append(rw); r_all.append(re); t_all.append(te)
+            trows.append(rw)
+            r_all.append(re)
+            t_all.append(te)
         icp_row = {"method": "icp60", **{k: float(np.mean([r[k] for r in trows])) for k in row_keys()[1:]}}
         rows.append(icp_row)
         errors["icp60"] = (np.concatenate(r_all), np.concatenate(t_all))
@@ -221,12 +228,14 @@ def evaluate(*, category: str, mode: str, checkpoint=None, model_path=None, data
         f"{icp_s:.1f} s")
     return {"category": category, "mode": mode, "n": len(samples), "rows": rows, "_errors": errors,
             "_info": {"scale": scale, "symmetry": symmetry, "icp_templates": [int(i) for i in pick],
-                      "icp_per_template": trows, "icp_samples": len(icp_set), "seconds": {"ours": ours_s, "icp60": icp_s}}}
+                      "icp_per_template": trows, "icp_samples": len(icp_set),
+                      "seconds": {"ours": ours_s, "icp60": icp_s}}}
 
 
 def format_table(result: dict) -> str:
     lines = [f"{result['category']} / {result['mode']}  (n = {result['n']})",
-             f"{'method':10s} {'rot mean':>9s} {'rot med':>8s} {'t mean':>7s} {'t med':>7s} {'5°':>5s} {'5°0.05':>7s} {'flip':>5s}"]
+             f"{'method':10s} {'rot mean':>9s} {'rot med':>8s} {'t mean':>7s} {'t med':>7s} {'5°':>5s} "
+             f"{'5°0.05':>7s} {'flip':>5s}"]
     n_icp = result.get("_info", {}).get("icp_samples", result["n"])
     for r in result["rows"]:
         name = r["method"] + (f" (n={n_icp})" if r["method"] == "icp60" and n_icp != result["n"] else "")
@@ -243,7 +252,7 @@ def metrics_for_metadata(result: dict) -> dict:
     ours = result["rows"][0]["method"]                                  # "equipose" or "equipose+icpK"
     subsets = {r["method"].split("[")[1].rstrip("]"): {**rows[r["method"]], "fraction": round(r["fraction"], 4)}
                for r in result["rows"] if "fraction" in r}                 # e.g. "handle seen" / "handle hidden"
-    return {"test_set": f"{result['category']}/{result['mode']} test split (equipose.train.evaluate)",
+    return {"test_set": f"{result['category']}/{result['mode']} test split (equipose.train.evaluation.evaluate)",
             "n": int(result["n"]), "icp60_samples": int(info.get("icp_samples", result["n"])),
             "method": ours, **rows[ours], "icp60": rows.get("icp60", {}), **subsets}
 

@@ -56,7 +56,10 @@ def icp60_outputs(model_points: np.ndarray, template: np.ndarray, iters: int = 3
     Rs, ts, rs = [], [], []
     for xb in x:
         R, t, res = icp60_all(xb, y, iters=iters, bidirectional=bidirectional, tree=tree)
-        Rs.append(R); ts.append(t); rs.append(res)
-    return {"hypothesis_rotations": np.stack(Rs).astype(np.float32), "hypothesis_translations": np.stack(ts).astype(np.float32),
+        Rs.append(R)
+        ts.append(t)
+        rs.append(res)
+    return {"hypothesis_rotations": np.stack(Rs).astype(np.float32),
+            "hypothesis_translations": np.stack(ts).astype(np.float32),
             "hypothesis_scores": np.stack(rs).astype(np.float32),
             "canonical_shape": np.broadcast_to(y.astype(np.float32), (len(x),) + y.shape).copy()}

@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from equipose.train.calibration import calibrate_offsets
+from equipose.train.evaluation.calibration import calibrate_offsets
 
 __all__ = ["predict_torch", "calibrate_model"]
 

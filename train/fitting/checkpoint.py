@@ -24,7 +24,7 @@ import torch
 from equipose.core.errors import ConfigError
 from equipose.core.presets import ModelConfig
 
-from equipose.train.model import EquiPoseNet
+from equipose.train.network.model import EquiPoseNet
 
 __all__ = ["save_checkpoint", "load_checkpoint", "model_from_checkpoint", "clean_state_dict", "optimizer_to",
            "CHECKPOINT_FORMAT"]

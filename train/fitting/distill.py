@@ -25,17 +25,17 @@ from tqdm import tqdm
 
 from equipose.core.errors import ConfigError
 
-from equipose.train.checkpoint import model_from_checkpoint
+from equipose.train.fitting.checkpoint import model_from_checkpoint
 
 __all__ = ["complete_clouds", "teacher_targets", "canonical_clouds", "distillation_loss"]
 
 
 def complete_clouds(root, category: str, split: str, limit: int | None = None) -> list:
     """Complete point clouds [P_i, 3] per instance, in the frame and units (metres) the render cache posed them in."""
-    from equipose.train.tabletop import is_tabletop, tabletop_sources
+    from equipose.train.data.tabletop import is_tabletop, tabletop_sources
     if is_tabletop(category):
         return [np.asarray(c, np.float64) for _, _, c in tabletop_sources(root, category, split)[:limit]]
-    from equipose.train.render_cache import modelnet_shapes
+    from equipose.train.data.render_cache import modelnet_shapes
     return [np.asarray(c, np.float64) for _, _, c in modelnet_shapes(root, category, split, "npy1024", limit)]
 
 
@@ -83,15 +83,15 @@ def teacher_targets(teacher_path, dataset, clouds: list, refine: int = 5, batch_
     Returns ``{"rotations" [V, 3, 3], "translations" [V, 3] (model units, camera frame of each view),
     "shapes" [I, M, 3] (one per instance), "instance" [V] int64 (each view's row of "shapes")}``.
 
-    The teacher sees each instance's complete cloud once, in the object frame the renderer posed it from; its pose
-    is carried to every view by that view's render pose (R_view · R_teacher, R_view · c + t_view) — exact for the
+    The teacher sees each instance's complete cloud once, in the object frame the renderer posed it from; its pose is
+    carried to every view by that view's render pose (R_view · R_teacher, R_view · c + t_view) — exact for the
     ICP-refined pose, and every view of an instance shares one frame. ``refine`` > 0: the teacher's ``refine`` best
-    hypotheses are ICP-refined against its own canonical shape and re-ranked (``equipose.runtime.refine``), as the shipped
-    complete models run. ``frame_priors`` (e.g. "footprint,mirror:x"): each instance's pose then goes through those
-    steps on its complete cloud in the teacher's calibrated category frame (``equipose.runtime.frame_priors``), and
-    its canonical shape turns with it (the posed shape stays where it was). ``flip_model``: a model whose metadata holds
-    ``flip_templates`` (``equipose.runtime.flip``); each instance's pose first takes the candidate (itself or a half
-    turn) those templates fit best. Cached in ``cache_file`` (keyed by the teacher file, the views, ``refine``,
+    hypotheses are ICP-refined against its own canonical shape and re-ranked (``equipose.runtime.refine``), as the
+    shipped complete models run. ``frame_priors`` (e.g. "footprint,mirror:x"): each instance's pose then goes through
+    those steps on its complete cloud in the teacher's calibrated category frame (``equipose.runtime.frame_priors``),
+    and its canonical shape turns with it (the posed shape stays where it was). ``flip_model``: a model whose metadata
+    holds ``flip_templates`` (``equipose.runtime.flip``); each instance's pose first takes the candidate (itself or a
+    half turn) those templates fit best. Cached in ``cache_file`` (keyed by the teacher file, the views, ``refine``,
     ``frame_priors`` and ``flip_model``).
     """
     from equipose.core.geometry import farthest_point_order
@@ -121,7 +121,8 @@ def teacher_targets(teacher_path, dataset, clouds: list, refine: int = 5, batch_
     for i, c in enumerate(clouds):
         c = c / dataset.scale                                                        # [P, 3] model units, object frame
         inputs[i] = c[farthest_point_order(c, n, start=0)]
-    R_inst = np.empty((len(clouds), 3, 3)); t_inst = np.empty((len(clouds), 3))
+    R_inst = np.empty((len(clouds), 3, 3))
+    t_inst = np.empty((len(clouds), 3))
     shapes = None
     for b in tqdm(range(0, len(clouds), batch_size), desc="teacher targets"):
         out = teacher(torch.from_numpy(inputs[b:b + batch_size]))

@@ -1,5 +1,5 @@
 """Training losses, apart from the network: the self-supervised min-of-60 chamfer, the axial-symmetry prior and the
-distillation loss of a partial-view student against a complete-shape teacher (``equipose.train.distill``).
+distillation loss of a partial-view student against a complete-shape teacher (``equipose.train.fitting.distill``).
 
 Convention: model units (metres / scale), camera frame; ``out`` is ``EquiPoseNet.forward(..., return_aux=True)``:
 ``hypothesis_scores`` [B, A], ``hypothesis_rotations`` [B, A, 3, 3], ``hypothesis_translations`` [B, A, 3],
@@ -13,7 +13,7 @@ import numpy as np
 import torch
 
 from equipose.core.errors import ConfigError
-from equipose.train.model import squared_distances
+from equipose.train.network.model import squared_distances
 
 __all__ = ["chamfer_min_of_60_loss", "axial_symmetry_loss", "reachable_targets", "view_distance", "distillation_loss"]
 

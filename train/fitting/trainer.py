@@ -17,84 +17,25 @@ import math
 import os
 import pathlib
 import time
-from dataclasses import dataclass
 
 import numpy as np
 import torch
 from tqdm import tqdm
 
 from equipose.core.errors import ConfigError
-from equipose.train.config_checks import check_config
-from equipose.train.augment import rotate_views
-from equipose.train.checkpoint import load_checkpoint, optimizer_to, save_checkpoint
-from equipose.train.data import collate, make_dataset
-from equipose.train.modelnet import MODELNET_SCALE, category_symmetry, default_data_root
-from equipose.train.inference import calibrate_model, predict_torch
-from equipose.train.calibration import apply_calibration
+from equipose.train.fitting.config import TrainConfig
+from equipose.train.data.augment import rotate_views
+from equipose.train.fitting.checkpoint import load_checkpoint, optimizer_to, save_checkpoint
+from equipose.train.data.datasets import collate, make_dataset
+from equipose.train.data.modelnet import MODELNET_SCALE, category_symmetry, default_data_root
+from equipose.train.evaluation.inference import calibrate_model, predict_torch
+from equipose.train.evaluation.calibration import apply_calibration
 from equipose.eval.metrics import rotation_errors
-from equipose.train.distill import canonical_clouds, complete_clouds, teacher_targets
-from equipose.train.losses import axial_symmetry_loss, chamfer_min_of_60_loss, distillation_loss
-from equipose.train.model import EquiPoseNet
+from equipose.train.fitting.distill import canonical_clouds, complete_clouds, teacher_targets
+from equipose.train.fitting.losses import axial_symmetry_loss, chamfer_min_of_60_loss, distillation_loss
+from equipose.train.network.model import EquiPoseNet
 
-__all__ = ["TrainConfig", "train"]
-
-
-@dataclass
-class TrainConfig:
-    """Every training option (the ``--config`` JSON uses these names)."""
-    category: str = "airplane"
-    mode: str = "complete"                # complete | partial
-    preset: str = "small"
-    steps: int = 1000
-    out: str = "runs/train"
-    batch_size: int = 8
-    lr: float = 5e-4
-    lr_gamma: float = 0.9995              # ExponentialLR per epoch (spec §5)
-    val_every: int = 250
-    ckpt_every: int = 100
-    val_size: int = 50                    # fixed validation subset (test split, seeded rotations)
-    calib_size: int = 64                  # category-frame training inputs for the validation-time calibration
-    seed: int = 0
-    threads: int = 1
-    data_root: str = ""
-    train_limit: int | None = None        # first K training instances only (tests, quick runs)
-    views: int = 10                       # partial: rendered views per training instance
-    test_views: int = 5                   # partial: rendered views per test instance
-    cache_dir: str = ""
-    device: str = ""                      # "" = cuda when present, else cpu
-    init: str = ""                        # warm start: weights of this checkpoint (same preset and mode), fresh
-                                          # optimiser and step 0 (e.g. a related category); ignored on --resume
-    freeze: str = ""                      # comma-separated submodules kept fixed: blocks, pose_head, inv_head, decoder
-    teacher: str = ""                     # partial only: distil from this complete-shape checkpoint (train/distill.py)
-    teacher_refine: int = 5               # teacher's ICP re-scoring of its k best hypotheses (0 = plain network)
-    teacher_priors: str = ""              # teacher's poses through frame priors, e.g. "footprint,mirror:x"
-    teacher_flip: str = ""                # and through the flip stage of this model's flip_templates (name / .onnx)
-    select_weight: float = 0.0            # distillation: weight of the hypothesis-selection cross-entropy
-    shape_weight: float = 1.0             # distillation: weight of the canonical-shape chamfer to the teacher's shape
-    view_weight: float = 0.0              # distillation: weight of the view's fit to that shape at the teacher pose
-    cloud_weight: float = 0.0             # distillation: weight of the chamfer to the complete cloud in the teacher frame
-    drift_weight: float = 0.0             # distillation: weight of how far ICP of the view onto it leaves that pose
-    drift_iters: int = 10                 # distillation: ICP iterations of that drift (losses.icp_drift)
-    rotate_augment: bool = False          # distillation: views turned by random rotations (augment.rotate_views)
-    symmetry_weight: float = 0.0          # complete, symmetric category: weight of model.axial_symmetry_loss
-    minutes: float = 0.0                  # > 0: stop (validate, save) once training steps took this many minutes
-
-    @classmethod
-    def from_sources(cls, config_file=None, **overrides) -> "TrainConfig":
-        """Defaults < JSON config file < explicit overrides (``None`` values are ignored)."""
-        names = {f.name for f in dataclasses.fields(cls)}
-        values = {}
-        if config_file:
-            with open(config_file) as f:
-                loaded = json.load(f)
-            unknown = set(loaded) - names
-            if unknown:
-                raise ConfigError(f"unknown training options in {config_file}: {sorted(unknown)}")
-            values.update(loaded)
-        values.update({k: v for k, v in overrides.items() if v is not None and k in names})
-        cfg = cls(**values)
-        check_config(cfg)
-        return cfg
+__all__ = ["train", "validate", "validation_inputs", "canonical_isotropy"]
 
 
 def _dist_info() -> tuple:
@@ -217,7 +158,8 @@ def train(cfg: TrainConfig, resume: bool = False, log=print) -> pathlib.Path:
     if cfg.teacher:
         clouds = complete_clouds(cfg.data_root or str(default_data_root()), cfg.category, "train", cfg.train_limit)
         if len(clouds) <= int(train_ds.instance.max()):
-            raise ConfigError(f"teacher: {len(clouds)} complete clouds for {int(train_ds.instance.max()) + 1} instances")
+            raise ConfigError(f"teacher: {len(clouds)} complete clouds for "
+                              f"{int(train_ds.instance.max()) + 1} instances")
         out.mkdir(parents=True, exist_ok=True)
         tt = teacher_targets(cfg.teacher, train_ds, clouds, refine=cfg.teacher_refine, cache_file=out / "teacher.npz",
                              frame_priors=cfg.teacher_priors, flip_model=cfg.teacher_flip,
@@ -240,8 +182,8 @@ def train(cfg: TrainConfig, resume: bool = False, log=print) -> pathlib.Path:
                         optimizer=opt, calibration=calibration, training=summary())
 
     spent = 0.0                                      # training-step seconds of this invocation (``minutes`` budget)
-    bar = tqdm(total=cfg.steps, initial=min(step, cfg.steps), disable=rank != 0, desc=f"train {cfg.category}/{cfg.mode}",
-               dynamic_ncols=True)
+    bar = tqdm(total=cfg.steps, initial=min(step, cfg.steps), disable=rank != 0,
+               desc=f"train {cfg.category}/{cfg.mode}", dynamic_ncols=True)
     while step < cfg.steps:
         net.train()
         for name in frozen:                          # frozen = fixed weights *and* fixed BatchNorm statistics
@@ -262,11 +204,13 @@ def train(cfg: TrainConfig, resume: bool = False, log=print) -> pathlib.Path:
             v = torch.from_numpy(idx).to(device)
             R_t, t_t = targets["rotations"][v], targets["translations"][v]            # [B, 3, 3], [B, 3]
             x, R_t, t_t = rotate_views(x, R_t, t_t, rng) if cfg.rotate_augment else (x, R_t, t_t)
-            loss, _ = distillation_loss(net(x, return_aux=True), targets["shapes"][targets["instance"][v]], R_t, t_t,
+            inst = targets["instance"][v]
+            loss, _ = distillation_loss(net(x, return_aux=True), targets["shapes"][inst], R_t, t_t,
                                         model.anchors, symmetric=symmetry != "none", select_weight=cfg.select_weight,
                                         shape_weight=cfg.shape_weight, points=x, view_weight=cfg.view_weight,
-                                        drift_weight=cfg.drift_weight, drift_iters=cfg.drift_iters, cloud_weight=cfg.cloud_weight,
-                                        clouds=targets["clouds"][targets["instance"][v]] if cfg.cloud_weight else None)
+                                        drift_weight=cfg.drift_weight, drift_iters=cfg.drift_iters,
+                                        cloud_weight=cfg.cloud_weight,
+                                        clouds=targets["clouds"][inst] if cfg.cloud_weight else None)
         opt.zero_grad(set_to_none=True)
         loss.backward()
         opt.step()

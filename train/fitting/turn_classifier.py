@@ -1,14 +1,13 @@
 """Train the turn classifier of a partial-view model (``equipose.runtime.turn_classifier``) without pose labels, and
 store it in the model file (metadata ``turn_classifier``).
 
-Data: the student's own rendered training views (``train/state/<name>``'s config: category, views) and, for each,
-the pose its complete-shape teacher gives the instance's complete cloud (``equipose.train.distill.teacher_targets``,
+Data: the student's own rendered training views (``train/state/<name>``'s config: category, views) and, for each, the
+pose its complete-shape teacher gives the instance's complete cloud (``equipose.train.fitting.distill.teacher_targets``,
 with the lane's frame priors and flip templates; cached in the folder's ``teacher.npz``), carried into the category
 frame by the teacher's calibration. No ground-truth pose is read. Each view enters as the SDK's model input
 (``equipose.preprocess.prepare_points``: N FPS points, centred, model units) carried into the category frame by that
-pose with a small random error (``noise_deg`` per axis, ``noise_t`` model units), and by its half turns about
-``axes``; a PointNet scores the sets and is trained so that the teacher-posed one scores highest (softmax over the
-sets).
+pose with a small random error (``noise_deg`` per axis, ``noise_t`` model units), and by its half turns about ``axes``;
+a PointNet scores the sets and is trained so that the teacher-posed one scores highest (softmax over the sets).
 
 With ``--student-frac F`` a share F of each batch is the model's **own** poses of those views instead (the file run
 through the SDK, every stage but this one; cached in the folder's ``student_poses.npz``), each labelled with the
@@ -17,10 +16,11 @@ time (an own pose off by 15° and turned is still to be turned back), not only o
 farther than ``--student-max-deg`` from every turn of the teacher's are left out. Still no ground-truth pose.
 
 Usage:
-    python -m equipose.train.turn_classifier --model sdk/models/car-partial.onnx --state train/state/car-partial \\
-        [--axes x,y,z] [--steps 2500] [--width 64] [--noise-deg 2] [--margin 0] [--ambiguous-margin 1] [--out F.onnx]
+    python -m equipose.train.fitting.turn_classifier --model sdk/models/car-partial.onnx \\
+        --state train/state/car-partial [--axes x,y,z] [--steps 2500] [--width 64] [--noise-deg 2] [--margin 0]
+        [--ambiguous-margin 1] [--out F.onnx]
         [--student-frac 0.5] [--student-max-deg 45]
-    python -m equipose.train.turn_classifier --model sdk/models/car-partial.int8.onnx \\
+    python -m equipose.train.fitting.turn_classifier --model sdk/models/car-partial.int8.onnx \\
         --copy-from sdk/models/car-partial.onnx          # the same classifier into another file
 
 Convention: rotations category → camera; translations model units in the centred camera frame of the model input.
@@ -54,7 +54,8 @@ class PointSetScore(torch.nn.Module):
     def __init__(self, width: int = 64, dropout: float = 0.3):
         super().__init__()
         w = int(width)
-        self.point = torch.nn.ModuleList([torch.nn.Linear(3, w), torch.nn.Linear(w, 2 * w), torch.nn.Linear(2 * w, 4 * w)])
+        self.point = torch.nn.ModuleList([torch.nn.Linear(3, w), torch.nn.Linear(w, 2 * w),
+                                          torch.nn.Linear(2 * w, 4 * w)])
         self.head = torch.nn.ModuleList([torch.nn.Linear(8 * w, 2 * w), torch.nn.Linear(2 * w, 1)])
         self.dropout = torch.nn.Dropout(dropout)
 
@@ -76,12 +77,12 @@ def teacher_poses(state_dir, log=print) -> tuple:
     """The student lane's rendered training views and the teacher's pose of each in the category frame.
 
     Returns (``RenderedPartial`` dataset, R [V, 3, 3] category → camera, t [V, 3] model units, camera frame)."""
-    from equipose.train.checkpoint import load_checkpoint
-    from equipose.train.data import RenderedPartial
-    from equipose.train.distill import complete_clouds, teacher_targets
-    from equipose.train.modelnet import default_data_root
-    from equipose.train.render_cache import ensure_cache
-    from equipose.train.trainer import TrainConfig
+    from equipose.train.fitting.checkpoint import load_checkpoint
+    from equipose.train.data.datasets import RenderedPartial
+    from equipose.train.fitting.distill import complete_clouds, teacher_targets
+    from equipose.train.data.modelnet import default_data_root
+    from equipose.train.data.render_cache import ensure_cache
+    from equipose.train.fitting.config import TrainConfig
     folder = pathlib.Path(state_dir)
     cfg = TrainConfig.from_sources(str(folder / "config.json"))
     if not cfg.teacher:
@@ -223,10 +224,12 @@ def add_to_model(model_path, net: PointSetScore, axes, margin: float, ambiguous_
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m equipose.train.turn_classifier", description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(prog="python -m equipose.train.fitting.turn_classifier",
+                                 description=__doc__.splitlines()[0])
     ap.add_argument("--model", required=True, help="the partial-view .onnx file the classifier is added to")
     ap.add_argument("--state", help="its training-state folder (train/state/NAME: config, teacher)")
-    ap.add_argument("--copy-from", help="instead of training: copy the classifier of this model file (e.g. fp32 → int8)")
+    ap.add_argument("--copy-from",
+                    help="instead of training: copy the classifier of this model file (e.g. fp32 → int8)")
     ap.add_argument("--axes", default="x,y,z")
     ap.add_argument("--steps", type=int, default=2500)
     ap.add_argument("--width", type=int, default=64)

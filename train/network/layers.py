@@ -4,7 +4,8 @@ Convention:
     Frame: model units (metres / scale), points centred by the caller (the model subtracts the input centroid).
     Layout: points ``xyz`` [B, P, 3]; group features ``feats`` [B, P, A, C] (A = 60 rotations, channels last, so
     every dense step is a MatMul over the last axis and no transpose is needed before it).
-    Rotating the input by the group element g permutes the rotation axis: ``feats'[:, :, CAYLEY[g, a]] = feats[:, :, a]``.
+    Rotating the input by the group element g permutes the rotation axis:
+    ``feats'[:, :, CAYLEY[g, a]] = feats[:, :, a]``.
 
 Every index operation is ``index_select`` on a flat int64 tensor, which exports to a plain ONNX ``Gather``
 (ecosystem notes §1.3); neighbourhoods use ``topk`` (ONNX ``TopK``); downsampling is a prefix slice of the

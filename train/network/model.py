@@ -23,8 +23,8 @@ from torch.nn import functional as F
 from equipose.core import icosahedral
 from equipose.core.presets import ModelConfig, get_preset
 
-from equipose.train.layers import LEAKY_SLOPE, SeparableSO3Block, shared_neighbourhoods
-from equipose.train.quotient import QuotientBlock, lift_pairs
+from equipose.train.network.layers import LEAKY_SLOPE, SeparableSO3Block, shared_neighbourhoods
+from equipose.train.network.quotient import QuotientBlock, lift_pairs
 
 __all__ = ["EquiPoseNet", "quaternion_to_matrix", "squared_distances", "hypothesis_scores", "OUTPUT_NAMES",
            "chamfer_min_of_60_loss", "axial_symmetry_loss"]
@@ -66,7 +66,8 @@ def hypothesis_scores(points: torch.Tensor, shape: torch.Tensor, R: torch.Tensor
     local = Rt @ x.transpose(1, 2).unsqueeze(1) - Rt @ t.unsqueeze(-1)  # [B, J, 3, N']
     # all squared distances in one MatMul: [x, ‖x‖², 1] · [−2z, 1, ‖z‖²]; clamp after the min (same result)
     a = torch.cat([local, (local * local).sum(2, keepdim=True), torch.ones_like(local[:, :, :1])], 2)  # [B, J, 5, N']
-    b = torch.cat([-2.0 * shape, torch.ones_like(shape[..., :1]), (shape * shape).sum(-1, keepdim=True)], -1)  # [B, M, 5]
+    b = torch.cat([-2.0 * shape, torch.ones_like(shape[..., :1]), (shape * shape).sum(-1, keepdim=True)], -1)
+    # b: [B, M, 5]
     d2 = a.transpose(2, 3) @ b.transpose(1, 2).unsqueeze(1)            # [B, J, N', M]
     score = d2.min(dim=3).values.clamp_min(0.0).mean(dim=2)            # [B, J]
     if bidirectional:
@@ -84,7 +85,9 @@ def _apply_rowwise(seq: nn.Module, x: torch.Tensor) -> torch.Tensor:
 
 
 class PoseHead(nn.Module):
-    """Equivariant pose branch: per-rotation residual quaternion and translation. [B, P, A, C] → q [B, A, 4], t [B, A, 3]."""
+    """Equivariant pose branch: per-rotation residual quaternion and translation.
+
+    [B, P, A, C] → q [B, A, 4], t [B, A, 3]."""
 
     def __init__(self, c: int, h: int):
         super().__init__()
@@ -106,7 +109,8 @@ class InvariantHead(nn.Module):
         self.point = nn.Linear(h + 3, latent)
         self.norm = nn.BatchNorm1d(latent)
         anchors = icosahedral.ANCHORS                                      # row-form: x @ A_a = (A_aᵀ x)ᵀ
-        self.register_buffer("anchors_cat", torch.tensor(anchors.transpose(1, 0, 2).reshape(3, A * 3), dtype=torch.float32),
+        anchors_cat = torch.tensor(anchors.transpose(1, 0, 2).reshape(3, A * 3), dtype=torch.float32)
+        self.register_buffer("anchors_cat", anchors_cat,
                              persistent=False)
 
     def forward(self, xyz, feats):
@@ -185,7 +189,7 @@ class EquiPoseNet(nn.Module):
         cfg = get_preset(config)
         self.config, self.partial = cfg, bool(partial)
         c = cfg.channels[-1]
-        if cfg.quotient:                                                   # 12-vertex descriptors (train/quotient.py)
+        if cfg.quotient:                                              # 12-vertex descriptors (network/quotient.py)
             self.blocks = nn.ModuleList(QuotientBlock(L, lifting=(i == 0)) for i, L in enumerate(cfg.layers))
             self.pose_head = QuotientPoseHead(c, cfg.head_channels)
             self.inv_head = QuotientInvariantHead(c, cfg.head_channels, cfg.latent)

@@ -13,7 +13,7 @@ fused product). Recovery:
 
 Convention:
     ``calib_points`` [B, N, 3] float32 in model units (a batch of training inputs); the result is the checkpoint dict
-    of ``train/checkpoint.py`` (no optimiser state: a fresh Adam starts on ``--resume``).
+    of ``train/fitting/checkpoint.py`` (no optimiser state: a fresh Adam starts on ``--resume``).
 """
 from __future__ import annotations
 
@@ -26,8 +26,8 @@ import torch
 from equipose.errors import ConfigError
 from equipose.core.presets import ModelConfig
 
-from .checkpoint import CHECKPOINT_FORMAT
-from .model import EquiPoseNet
+from equipose.train.fitting.checkpoint import CHECKPOINT_FORMAT
+from equipose.train.network.model import EquiPoseNet
 
 __all__ = ["checkpoint_from_onnx"]
 
@@ -111,7 +111,10 @@ def checkpoint_from_onnx(path, calib_points: np.ndarray | None = None, *, seed: 
         state[key] = torch.tensor(np.array(value), dtype=ref.dtype)
     model.load_state_dict(state)
     for _, bn in fused:                                           # identity in eval mode until measured
-        bn.running_mean.zero_(); bn.running_var.fill_(1.0 - bn.eps); bn.weight.fill_(1.0); bn.bias.zero_()
+        bn.running_mean.zero_()
+        bn.running_var.fill_(1.0 - bn.eps)
+        bn.weight.fill_(1.0)
+        bn.bias.zero_()
     if calib_points is None:
         rng = np.random.default_rng(seed)
         calib_points = (rng.standard_normal((64, cfg.num_points, 3)) * [0.3, 0.2, 0.1]).astype(np.float32)
@@ -127,8 +130,10 @@ def checkpoint_from_onnx(path, calib_points: np.ndarray | None = None, *, seed: 
     for _, bn in fused:
         y = stats[id(bn)].double()                                # [rows, C] fused pre-activations
         mean, var = y.mean(0), y.var(0, unbiased=False).clamp_min(1e-6)
-        bn.running_mean.copy_(mean.float()); bn.running_var.copy_(var.float())
-        bn.weight.copy_(torch.sqrt(var + bn.eps).float()); bn.bias.copy_(mean.float())
+        bn.running_mean.copy_(mean.float())
+        bn.running_var.copy_(var.float())
+        bn.weight.copy_(torch.sqrt(var + bn.eps).float())
+        bn.bias.copy_(mean.float())
     training = json.loads(meta.get("training", "{}") or "{}")
     calib = None
     if "calibration_rotation" in meta:

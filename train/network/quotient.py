@@ -24,7 +24,7 @@ from torch import nn
 from equipose.core import icosahedral
 from equipose.core.presets import LayerSpec
 
-from equipose.train.layers import SeparableSO3Block, hat_weights, kernel_aug
+from equipose.train.network.layers import SeparableSO3Block, hat_weights, kernel_aug
 
 __all__ = ["QuotientInterConv", "QuotientIntraConv", "QuotientBlock", "lift_pairs", "V", "KERNEL_CLASSES",
            "VERTEX_CLASSES"]
@@ -35,7 +35,8 @@ VERTEX_CLASSES = 4          # same, near ring, far ring, antipode
 
 
 def _kernel_class_matrix() -> np.ndarray:
-    """[V·KERNEL_CLASSES, 13] 0/1: row (v, class) sums the hat weights of the kernel points of that class seen from v."""
+    """[V·KERNEL_CLASSES, 13] 0/1: row (v, class) sums the hat weights of the kernel points of that class seen from
+    v."""
     m = np.zeros((V, KERNEL_CLASSES, 13), np.float32)
     m[:, 0, 0] = 1.0                                                                   # the centre
     for v in range(V):
@@ -94,7 +95,8 @@ class QuotientInterConv(nn.Module):
 
 
 class QuotientIntraConv(nn.Module):
-    """Group convolution on vertex descriptors: out[v] = Σ_u W[class(v, u)] · f[u] (one MatMul + one constant MatMul)."""
+    """Group convolution on vertex descriptors: out[v] = Σ_u W[class(v, u)] · f[u] (one MatMul + one constant
+    MatMul)."""
 
     def __init__(self, c_in: int, c_out: int):
         super().__init__()

@@ -13,7 +13,7 @@ Convention:
     else (points, strides, radii, kernels, quotient layout), and each wide width must be a multiple of the narrow one.
 
 Command:
-    python -m equipose.train.widen IN.pt --preset edge-qw --out OUT.pt [--seed 0]
+    python -m equipose.train.network.widen IN.pt --preset edge-qw --out OUT.pt [--seed 0]
 """
 from __future__ import annotations
 
@@ -25,8 +25,8 @@ import torch
 
 from equipose.core.presets import ModelConfig, get_preset
 from equipose.errors import ConfigError
-from equipose.train.checkpoint import model_from_checkpoint, save_checkpoint
-from equipose.train.model import EquiPoseNet
+from equipose.train.fitting.checkpoint import model_from_checkpoint, save_checkpoint
+from equipose.train.network.model import EquiPoseNet
 
 __all__ = ["widen_model", "widen_checkpoint", "SPLIT_RANGE"]
 
@@ -84,9 +84,9 @@ def _widen(w: torch.Tensor, *, out_axis: int | None = None, out_src=None, in_axi
 def widen_model(model: EquiPoseNet, preset, seed: int = 0) -> EquiPoseNet:
     """A network of ``preset`` (wider backbone) computing the same outputs as ``model``.
 
-    Layouts handled (``train/quotient.py``, ``train/layers.py``, ``train/model.py``): inter weight [K·Cin, Cout]
-    (kernel- or class-major), intra weight [Cin, R·Cout] (quotient, class-major) or [R·Cin, Cout] (60 rotations),
-    skip ``nn.Linear`` [Cout, Cin], the heads' first ``nn.Linear`` [H, C]. Raises ``ConfigError`` for presets that
+    Layouts handled (``quotient``, ``layers``, ``model`` of this package): inter weight [K·Cin, Cout] (kernel- or
+    class-major), intra weight [Cin, R·Cout] (quotient, class-major) or [R·Cin, Cout] (60 rotations), skip
+    ``nn.Linear`` [Cout, Cin], the heads' first ``nn.Linear`` [H, C]. Raises ``ConfigError`` for presets that
     differ in more than channel widths.
     """
     narrow = model.config
@@ -144,7 +144,7 @@ def widen_checkpoint(src, preset, out, seed: int = 0) -> dict:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m equipose.train.widen", description=__doc__.split("\n")[0])
+    ap = argparse.ArgumentParser(prog="python -m equipose.train.network.widen", description=__doc__.split("\n")[0])
     ap.add_argument("checkpoint", help="trained checkpoint (.pt) of the narrow preset")
     ap.add_argument("--preset", required=True, help="wider preset, e.g. edge-qw")
     ap.add_argument("--out", required=True, help="checkpoint to write (step 0, fresh optimiser)")

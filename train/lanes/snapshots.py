@@ -1,6 +1,6 @@
 """Snapshots of a training lane for weight averaging: a copy of each model's ``latest.pt`` per saved step,
-``DEST/<name>/<step, 9 digits>.pt`` (``python -m equipose.train.long_runs run --snapshots DEST``; averaged by
-``python -m equipose.train.averaging``)."""
+``DEST/<name>/<step, 9 digits>.pt`` (``python -m equipose.train.lanes.long_runs run --snapshots DEST``; averaged by
+``python -m equipose.train.lanes.averaging``)."""
 from __future__ import annotations
 
 import os

@@ -1,24 +1,25 @@
 """Training that accumulates across sessions: a tracked folder of resumable checkpoints with a manifest each.
 
 Layout (``train/state/`` in the repository, committed):
-    <name>/latest.pt       checkpoint of ``train/checkpoint.py`` (weights, Adam state, step)
+    <name>/latest.pt       checkpoint of ``train/fitting/checkpoint.py`` (weights, Adam state, step)
     <name>/config.json     the ``TrainConfig`` that ``equipose train --out <dir> --resume`` continues with
     <name>/manifest.json   {"name", "role", "category", "mode", "preset", "steps", "data_version", "command",
                            "teacher", "history": [{"date", "steps_before", "steps_after", "minutes", "val": ...}]}
 
 ``<name>`` is the shipped model's name (``sdk/models/<name>.onnx``), or a candidate's whose manifest names the model
 it may replace (``"candidate_for"``: ``chair-partial-qw`` is ``chair-partial`` widened to ``edge-qw`` by
-``python -m equipose.train.widen``). A complete-shape model is a *teacher*; a partial-view model is a *student*
+``python -m equipose.train.network.widen``). A complete-shape model is a *teacher*; a partial-view model is a *student*
 distilled from ``<category>-complete`` in the same folder.
 
-Commands (``python -m equipose.train.long_runs ...``):
-    seed NAME ...            recover the shipped ONNX networks into resumable checkpoints (``train/onnx_weights.py``)
+Commands (``python -m equipose.train.lanes.long_runs ...``):
+    seed NAME ...            recover the shipped ONNX networks into resumable checkpoints
+                             (``equipose.train.network.onnx_weights``)
     run --lane A,B,C --minutes M [--slice S] [--snapshots DIR [--snapshot-every SEC]]
     slice NAME --minutes M
                              resume each named model for S minutes in turn until M minutes are spent (one process
                              per core: torch uses 1 thread); ``--snapshots`` keeps a copy of each new ``latest.pt``
                              as ``DIR/<name>/<step>.pt`` (checked every SEC seconds, default 120) for weight
-                             averaging (``python -m equipose.train.averaging``)
+                             averaging (``python -m equipose.train.lanes.averaging``)
     adopt NAME RUN_DIR       start tracking a model trained with ``equipose train --out RUN_DIR``
     show                     print every manifest (steps, data version, last validation)
 """
@@ -37,7 +38,7 @@ import numpy as np
 
 __all__ = ["STATE_DIR", "seed_model", "adopt_run", "run_slice", "run_lane", "data_version", "read_manifest"]
 
-REPO = pathlib.Path(__file__).resolve().parents[1]
+REPO = pathlib.Path(__file__).resolve().parents[2]
 STATE_DIR = REPO / "train" / "state"
 MODELS_DIR = REPO / "sdk" / "models"
 
@@ -65,7 +66,7 @@ def _calibration_inputs(root, category: str, partial: bool, n: int, count: int =
     """[count, n, 3] model-unit training-like inputs for BatchNorm statistics: complete clouds, or the half of each
     facing a random direction (a cheap stand-in for a rendered partial view)."""
     from equipose.core.geometry import farthest_point_order, random_rotations
-    from .data import MODELNET_SCALE, load_complete
+    from equipose.train.data.modelnet import MODELNET_SCALE, load_complete
     clouds, _ = load_complete(root, category, "train")
     rng = np.random.default_rng(seed)
     out = np.empty((count, n, 3), np.float32)
@@ -79,13 +80,14 @@ def _calibration_inputs(root, category: str, partial: bool, n: int, count: int =
     return out
 
 
-def seed_model(name: str, *, state_dir=STATE_DIR, models_dir=MODELS_DIR, data_root=None, overwrite=False) -> pathlib.Path:
+def seed_model(name: str, *, state_dir=STATE_DIR, models_dir=MODELS_DIR, data_root=None,
+               overwrite=False) -> pathlib.Path:
     """Recover ``models_dir/<name>.onnx`` into ``state_dir/<name>/`` (checkpoint, config, manifest)."""
     import torch
-    from .checkpoint import save_checkpoint, model_from_checkpoint
-    from .data import default_data_root
-    from .onnx_weights import checkpoint_from_onnx
-    from .trainer import TrainConfig
+    from equipose.train.fitting.checkpoint import save_checkpoint, model_from_checkpoint
+    from equipose.train.data.modelnet import default_data_root
+    from equipose.train.network.onnx_weights import checkpoint_from_onnx
+    from equipose.train.fitting.config import TrainConfig
     root = pathlib.Path(data_root or default_data_root())
     folder = pathlib.Path(state_dir) / name
     if (folder / "latest.pt").is_file() and not overwrite:
@@ -149,7 +151,7 @@ def adopt_run(name: str, run_dir, *, state_dir=STATE_DIR, overwrite: bool = Fals
 
 
 def _default_root():
-    from .data import default_data_root
+    from equipose.train.data.modelnet import default_data_root
     return default_data_root()
 
 
@@ -157,8 +159,9 @@ def run_slice(name: str, minutes: float, *, state_dir=STATE_DIR, data_root=None,
               batch_size: int | None = None, log=print) -> dict:
     """Resume ``name`` for ``minutes`` of training steps; update its manifest; return the last validation record.
     ``batch_size`` overrides the config's for this slice only (e.g. a larger batch on a lent GPU)."""
-    from .data import default_data_root
-    from .trainer import TrainConfig, train
+    from equipose.train.data.modelnet import default_data_root
+    from equipose.train.fitting.config import TrainConfig
+    from equipose.train.fitting.trainer import train
     folder = pathlib.Path(state_dir) / name
     man = read_manifest(folder)
     cfg = TrainConfig.from_sources(str(folder / "config.json"))
@@ -198,7 +201,7 @@ def run_lane(names: list, minutes: float, slice_minutes: float, *, state_dir=STA
              snapshots=None, snapshot_every: float = 120.0, log=print) -> None:
     """Round-robin ``run_slice`` over ``names`` until ``minutes`` of wall time have passed; with ``snapshots`` (a
     folder) a ``SnapshotCopier`` keeps each saved step there."""
-    from .snapshots import SnapshotCopier
+    from equipose.train.lanes.snapshots import SnapshotCopier
     end = time.time() + 60.0 * minutes
     copier = SnapshotCopier(names, snapshots, state_dir=state_dir, every=snapshot_every).start() if snapshots else None
     k = 0
@@ -216,22 +219,30 @@ def run_lane(names: list, minutes: float, slice_minutes: float, *, state_dir=STA
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m equipose.train.long_runs", description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(prog="python -m equipose.train.lanes.long_runs", description=__doc__.splitlines()[0])
     sub = ap.add_subparsers(dest="cmd", required=True)
-    s = sub.add_parser("seed"); s.add_argument("names", nargs="+"); s.add_argument("--overwrite", action="store_true")
-    r = sub.add_parser("run"); r.add_argument("--lane", required=True); r.add_argument("--minutes", type=float, required=True)
-    r.add_argument("--slice", type=float, default=20.0)
+    s = sub.add_parser("seed", help="recover shipped ONNX networks into resumable checkpoints")
+    s.add_argument("names", nargs="+")
+    s.add_argument("--overwrite", action="store_true")
+    r = sub.add_parser("run", help="a lane: resume each named model in turn, one slice at a time")
+    r.add_argument("--lane", required=True, help="comma-separated model names")
+    r.add_argument("--minutes", type=float, required=True, help="wall-clock minutes for the whole lane")
+    r.add_argument("--slice", type=float, default=20.0, help="minutes per slice (default 20)")
     r.add_argument("--cache-dir", help="render cache folder (default: data_cache/ beside the package)")
     r.add_argument("--snapshots", help="keep a copy of each saved step here (DIR/<name>/<step>.pt) for averaging")
     r.add_argument("--snapshot-every", type=float, default=120.0, help="seconds between checks (default 120)")
-    o = sub.add_parser("slice", help="one slice of one model (e.g. on a lent GPU)"); o.add_argument("name")
-    o.add_argument("--minutes", type=float, required=True); o.add_argument("--cache-dir")
+    o = sub.add_parser("slice", help="one slice of one model (e.g. on a lent GPU)")
+    o.add_argument("name")
+    o.add_argument("--minutes", type=float, required=True)
+    o.add_argument("--cache-dir")
     o.add_argument("--batch-size", type=int, help="this slice only (default: the model's config)")
-    a = sub.add_parser("adopt"); a.add_argument("name"); a.add_argument("run_dir")
+    a = sub.add_parser("adopt", help="start tracking a run of equipose train --out RUN_DIR")
+    a.add_argument("name")
+    a.add_argument("run_dir")
     a.add_argument("--overwrite", action="store_true")
-    sub.add_parser("show")
-    for p in (s, r, o, a, ap):
-        p.add_argument("--state-dir", default=str(STATE_DIR)) if p is not ap else None
+    sub.add_parser("show", help="print every manifest")
+    for p in (s, r, o, a):
+        p.add_argument("--state-dir", default=str(STATE_DIR))
     args = ap.parse_args(argv)
     import signal
     signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))       # a stopped lane still restores config.json (finally)
@@ -243,7 +254,7 @@ def main(argv=None) -> int:
         print(args.name, "->", adopt_run(args.name, args.run_dir, state_dir=state, overwrite=args.overwrite))
     elif args.cmd == "slice":
         print(args.name, run_slice(args.name, args.minutes, state_dir=state, cache_dir=args.cache_dir,
-                                         batch_size=args.batch_size))
+                                   batch_size=args.batch_size))
     elif args.cmd == "run":
         run_lane([n.strip() for n in args.lane.split(",") if n.strip()], args.minutes, args.slice, state_dir=state,
                  cache_dir=args.cache_dir, snapshots=args.snapshots, snapshot_every=args.snapshot_every)

@@ -1,7 +1,7 @@
 """Weight averaging of one run's checkpoints (stochastic weight averaging, SWA): the mean of snapshots taken along a
 run at a steady learning rate sits nearer the middle of the basin the optimiser wanders in than any single snapshot.
 
-Usage: ``python -m equipose.train.averaging OUT.pt SNAPSHOT.pt...`` (e.g. copies of a lane's ``latest.pt`` taken
+Usage: ``python -m equipose.train.lanes.averaging OUT.pt SNAPSHOT.pt...`` (e.g. copies of a lane's ``latest.pt`` taken
 every two minutes). The result keeps the newest snapshot's metadata (step, calibration, training record), carries the
 averaged floating-point tensors (BatchNorm running statistics included) and no optimiser state; it calibrates,
 exports and ships like any checkpoint. Snapshots of the same step are counted once (a copy loop that outlives its
@@ -18,7 +18,7 @@ import sys
 import torch
 
 from equipose.core.errors import ConfigError
-from equipose.train.checkpoint import load_checkpoint
+from equipose.train.fitting.checkpoint import load_checkpoint
 
 __all__ = ["average_checkpoints", "main"]
 
@@ -65,7 +65,7 @@ def average_checkpoints(paths: list) -> dict:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m equipose.train.averaging", description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(prog="python -m equipose.train.lanes.averaging", description=__doc__.splitlines()[0])
     ap.add_argument("out", help="the averaged checkpoint (.pt)")
     ap.add_argument("snapshots", nargs="+", help="checkpoints of one run")
     a = ap.parse_args(argv)
