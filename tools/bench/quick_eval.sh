@@ -1,9 +1,9 @@
 #!/usr/bin/env bash
 # Quick comparison of a trained run before shipping it (no ICP-60 baseline): calibrate → export fp32 to a scratch
-# folder → refined calibration (ICP re-scoring of 5) → the stages ship_model.sh would add → SDK evaluation on the
+# folder → refined calibration (ICP re-scoring of 5) → the stages a release recipe would add → SDK evaluation on the
 # test set: the plain network (before the stages) and the default pipeline.
 # Usage: tools/bench/quick_eval.sh RUN_DIR CATEGORY MODE [CALIB_NUM]
-#   EQ, SCALE, EXPORT_CATEGORY, REFINE_ITERS, COPIES, VISIBILITY, POLISH, DENSIFY, REST_FACET, FRAME_PRIORS, FLIP_TEACHER, FLIP_AXES, FLIP_POOL, TURN_STATE, TURN_AXES, TURN_FROM as in ship_model.sh;
+#   EQ, SCALE, EXPORT_CATEGORY, REFINE_ITERS, COPIES, VISIBILITY, POLISH, DENSIFY, REST_FACET, FRAME_PRIORS, FLIP_TEACHER, FLIP_AXES, FLIP_POOL, TURN_STATE, TURN_AXES, TURN_FROM: the release recipe's fields (train/release/recipe.py);
 #   KEEP=path.onnx keeps the evaluated file there.
 set -euo pipefail
 RUN=$1; CAT=$2; MODE=$3; NUM=${4:-512}

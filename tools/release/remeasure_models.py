@@ -1,10 +1,11 @@
 """Re-measure the shipped models' stored test metrics with the current SDK (after a change on the prediction path).
 
-For every ``sdk/models/NAME[.int8].onnx`` (or the NAMEs given): the last two evaluation commands of
-``tools/release/ship_model.sh`` again — the plain network (``--refine 0``, no ICP-60) into ``docs/results/models/F.norefine.txt``
-when the file has a refined calibration, then the file's own setting with ICP-60 on the same number of test samples as
-before, ``--store-metrics``, JSON, plot and text into ``docs/results/models/F.{json,png,txt}``. Test set (category /
-mode) and ICP sample count are read from the file's stored metrics. Prints old → new rotation mean / median / 5°.
+For every ``sdk/models/NAME[.int8].onnx`` (or the NAMEs given): the two evaluation steps of a release
+(``python -m equipose.train.release NAME``) again — the plain network (``--refine 0``, no ICP-60) into
+``docs/results/models/F.norefine.txt`` when the file has a refined calibration, then the file's own setting with ICP-60
+on the same number of test samples as before, ``--store-metrics``, JSON, plot and text into
+``docs/results/models/F.{json,png,txt}``. Test set (category / mode) and ICP sample count are read from the file's
+stored metrics. Prints old → new rotation mean / median / 5°.
 
 Usage: python tools/release/remeasure_models.py [NAME | FILE.onnx ...]   (NAME: fp32 and int8; FILE: that file only)
 """
