@@ -16,6 +16,8 @@ __all__ = ["add_arguments", "run"]
 def add_arguments(p):
     p.add_argument("--out", default="runs/demo", help="folder for overlays and results (default: runs/demo)")
     p.add_argument("--model", default=None, help="model to use instead of the bundled one")
+    p.add_argument("--profile", default="default", choices=["fast", "default", "accurate"],
+                   help="speed / accuracy point of the pipeline (PoseEstimator(profile=...); docs/benchmarks.md)")
     p.add_argument("--threads", type=int, default=None, help="onnxruntime thread budget (default: all cores; a single object "
                    "of a light model runs on one)")
     p.add_argument("--boxes", action="store_true", help="use the sample's annotated boxes instead of auto crop")
@@ -33,7 +35,7 @@ def run(args) -> int:
     from equipose.sources import FolderSource
 
     model = pathlib.Path(args.model) if args.model else demo_model_path()
-    est = PoseEstimator(model, threads=args.threads)
+    est = PoseEstimator(model, threads=args.threads, profile=args.profile)
     frame = next(iter(FolderSource(sample_path("table_mug"))))
     print(f"equipose demo: sample 'table_mug' (PCL tutorial scene, BSD-3), {frame.depth.shape[1]}×{frame.depth.shape[0]} "
           f"depth; model {model.name} ({est.category}, {est.num_points} points, scale {est.scale} m/unit)")
@@ -70,7 +72,8 @@ def run(args) -> int:
         R = np.round(r.rotation, 3).tolist()
         print(f"  {r.summary()}")
         print(f"      R={R}  t(m)={np.round(r.translation, 3).tolist()}  "
-              f"timings ms: " + ", ".join(f"{k} {v:.1f}" for k, v in r.timings.items() if k != "batch"))
+              f"timings ms: " + ", ".join(f"{k} {v:.1f}" for k, v in r.timings.items()
+                                        if k not in ("batch", "stages")))
         rec = r.to_dict()
         if r.symmetry_axis is not None and plane is not None:                 # a resting cylinder: upright or lying
             a = axis_table_angle(r.symmetry_axis, plane[0])

@@ -35,12 +35,30 @@ def add_arguments(p) -> None:
     p.add_argument("--copies", type=int, default=None,
                    help="with --model: rotated input copies per object (PoseEstimator(copies=K); default: the file's "
                         "own setting, 'auto')")
+    p.add_argument("--profile", default="default",
+                   help="with --model: the SDK profile (fast, default, accurate; PoseEstimator(profile=...))")
+    p.add_argument("--stages", default=None,
+                   help='with --model: stage options as JSON, e.g. \'{"rescore": {"iters": 10}, "turn": false}\'')
     p.add_argument("--up", choices=["gt"], default=None,
                    help="with --model: give the SDK each view's true up axis as the up prior (the setting of a user "
                         "with a level IMU or a table plane; PoseEstimator.predict(..., up=...)); ICP-60 does not use it")
     p.add_argument("--store-metrics", dest="store_metrics", action="store_true",
                    help="with --model: write this table into the model file's 'metrics' metadata (what "
                         "'equipose models' lists)")
+
+
+def _stages(text):
+    """``--stages`` JSON → {stage: options} (None when not given)."""
+    if not text:
+        return None
+    import json
+    try:
+        value = json.loads(text)
+    except json.JSONDecodeError as e:
+        raise ConfigError(f"--stages must be JSON like '{{\"rescore\": {{\"iters\": 10}}}}': {e}") from None
+    if not isinstance(value, dict):
+        raise ConfigError(f"--stages must be a JSON object of stage options, got {text!r}")
+    return value
 
 
 def run(args) -> int:
@@ -52,6 +70,8 @@ def run(args) -> int:
     exclude = [e for e in args.exclude.split(",") if e]
     if args.exclude_suspects:
         exclude += list(SUSPECT_TEST_INSTANCES.get(args.category, ()))
+    if args.store_metrics and (args.up or args.stages or args.profile != "default"):
+        raise ConfigError("--store-metrics stores the default profile's metrics; drop --up / --stages / --profile")
     if args.store_metrics and args.up:
         raise ConfigError("--store-metrics stores the plain setting's metrics; drop --up")
     if exclude and args.store_metrics:
@@ -59,7 +79,8 @@ def run(args) -> int:
     res = evaluate(category=args.category, mode=args.mode, checkpoint=args.checkpoint, model_path=args.model,
                    data_root=args.data_root, limit=args.limit, icp_templates=args.icp_templates,
                    icp_points=args.icp_points, icp_iters=args.icp_iters, icp_samples=args.icp_samples, cache_dir=args.cache_dir,
-                   refine=args.refine, copies=args.copies, exclude=exclude, up=args.up)
+                   refine=args.refine, copies=args.copies, exclude=exclude, up=args.up, profile=args.profile,
+                   stages=_stages(args.stages))
     if args.store_metrics and not args.model:
         raise ConfigError("--store-metrics needs --model (the metrics describe that file)")
     print(format_table(res))

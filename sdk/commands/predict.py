@@ -67,6 +67,8 @@ def add_arguments(p):
     p.add_argument("--out", "-o", help="folder for overlay PNGs and results.jsonl")
     p.add_argument("--overwrite", action="store_true", help="replace an existing results.jsonl in --out")
     p.add_argument("--json", action="store_true", help="print one JSON object per frame instead of text lines")
+    p.add_argument("--profile", default="default", choices=["fast", "default", "accurate"],
+                   help="speed / accuracy point of the pipeline (PoseEstimator(profile=...); docs/benchmarks.md)")
     p.add_argument("--threads", type=int, default=None, help="onnxruntime thread budget (default: all cores; a single object "
                    "of a light model runs on one)")
     p.add_argument("--max-frames", type=int, default=None, help="stop after this many frames")
@@ -86,7 +88,7 @@ def run(args) -> int:
     if model is None:
         from equipose.models import demo_model_path
         model = demo_model_path()
-    est = PoseEstimator(model, threads=args.threads)
+    est = PoseEstimator(model, threads=args.threads, profile=args.profile)
     if est.random_init:
         print(f"note: {pathlib.Path(model).name} has random weights (an export for tests or benchmarks): "
               "its poses are meaningless", file=sys.stderr)

@@ -241,7 +241,8 @@ class PoseEstimator:
             res.num_points, res.points_centre = int(counts[b]), prep.centre_m.copy()
             res.crop = {} if crops[b] is None else dict(crops[b].diagnostics)
             res.timings = {"crop": crop_ms[b], "fps": fps_ms[b], "inference": inf_ms, "selection": sel_ms,
-                           "total": crop_ms[b] + fps_ms[b] + inf_ms + sel_ms, "batch": len(preps)}
+                           "total": crop_ms[b] + fps_ms[b] + inf_ms + sel_ms, "batch": len(preps),
+                           "stages": res.timings.get("stages", {})}
             results.append(res)
         return results
 

@@ -26,10 +26,10 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
-from scipy.spatial import cKDTree
 
 from equipose.core.errors import ConfigError, InvalidPointsError
 from equipose.core.geometry import axis_angle_deg, nearest_rotation, rotation_between
+from equipose.core.neighbours import NearestNeighbours
 from equipose.core.metadata import FRAME_PRIOR_STEPS
 from equipose.runtime.rest_facet import rest_facet_up
 
@@ -78,7 +78,7 @@ def mirror_plane(points, normal, max_deg: float = MAX_DEG, iters: int = _MIRROR_
     """
     P = np.asarray(points, np.float64)                                       # [P, 3]
     n0 = np.asarray(normal, np.float64) / np.linalg.norm(normal)
-    tree = cKDTree(P)
+    tree = NearestNeighbours(P)
     n, d = n0, float(P.mean(0) @ n0)
     cos_max = np.cos(np.radians(max_deg))
     for _ in range(iters):

@@ -89,15 +89,20 @@ class Pipeline:
 
     def run(self, outputs: dict, b: int, prep, *, prefer=None, prefer_margin: float = 0.0, up=None,
             category: str = "", top_k: int = 5) -> tuple:
-        """Batch item ``b`` → (PoseResult without timings, pipeline ms)."""
+        """Batch item ``b`` → (PoseResult with ``timings["stages"]`` = {stage: ms}, pipeline ms)."""
         t0 = time.perf_counter()
         state = self.start(outputs, b, prep)
         state.prefer, state.prefer_margin, state.top_k = prefer, prefer_margin, top_k
         if up is not None:
             state.up, state.up_source = np.asarray(up, np.float64), "given"
-        for stage in self.stages.values():
+        stage_ms = {}
+        for name, stage in self.stages.items():
+            t1 = time.perf_counter()
             stage.run(state)
-        return self.result(state, category), (time.perf_counter() - t0) * 1e3
+            stage_ms[name] = (time.perf_counter() - t1) * 1e3
+        res = self.result(state, category)
+        res.timings = {"stages": stage_ms}
+        return res, (time.perf_counter() - t0) * 1e3
 
     def result(self, state: ObjectState, category: str) -> PoseResult:
         """The ``PoseResult`` of a finished state (metres, camera frame)."""

@@ -34,7 +34,8 @@ class PoseResult:
         hypothesis_index: chosen hypothesis (0..59); top_k: best hypotheses (index, score, angle to best).
         symmetry: metadata symmetry string; symmetry_axis: [3] camera-frame unit axis (None if not symmetric);
             rotation_canonical: [3, 3] canonical representative of the symmetry class (== rotation if none).
-        category, num_points (points the crop produced), timings (ms: crop, fps, inference, selection, total),
+        category, num_points (points the crop produced), timings (ms: crop, fps, inference, selection, total;
+        "stages": {stage: ms} of the selection),
         crop: crop diagnostics, object_id (tracking), random_init (the model has random weights),
         points_centre: [3] metres, camera frame, centroid of the object points the model saw (tracking associates
             objects by it: it does not depend on the chosen hypothesis).
@@ -148,7 +149,8 @@ class PoseResult:
             "rotation_canonical": None if self.rotation_canonical is None else np.round(self.rotation_canonical, 6).tolist(),
             "box_extent_m": [np.round(v, 5).tolist() for v in self.extent()],
             "num_points": int(self.num_points),
-            "timings_ms": {k: round(float(v), 3) for k, v in self.timings.items()},
+            "timings_ms": {k: ({n: round(float(x), 3) for n, x in v.items()} if isinstance(v, dict) else
+                               round(float(v), 3)) for k, v in self.timings.items()},
             "crop": self.crop,
             "points_centre_m": None if self.points_centre is None else np.round(self.points_centre, 6).tolist(),
             "random_init": bool(self.random_init),

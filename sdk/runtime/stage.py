@@ -24,7 +24,8 @@ import numpy as np
 
 from equipose.core.errors import ConfigError
 
-__all__ = ["Stage", "ObjectState", "register_stage", "registered_stages", "stage_metadata_keys", "STAGE_ORDER"]
+__all__ = ["Stage", "ObjectState", "register_stage", "unregister_stage", "registered_stages", "stage_metadata_keys",
+           "STAGE_ORDER"]
 
 STAGE_ORDER: list = []          # stage names in run order (registration inserts each after its ``after``)
 _REGISTRY: dict = {}
@@ -68,6 +69,14 @@ def register_stage(cls):
         STAGE_ORDER.remove(cls.name)
     STAGE_ORDER.insert(0 if cls.after is None else STAGE_ORDER.index(cls.after) + 1, cls.name)
     return cls
+
+
+def unregister_stage(name: str) -> None:
+    """Remove a registered stage (a test's toy stage, a plug-in being replaced); unknown names are refused."""
+    if name not in _REGISTRY:
+        raise ConfigError(f"no stage named {name!r} is registered (registered: {', '.join(STAGE_ORDER)})")
+    del _REGISTRY[name]
+    STAGE_ORDER.remove(name)
 
 
 def registered_stages() -> dict:

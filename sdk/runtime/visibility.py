@@ -21,10 +21,11 @@ Convention:
 from __future__ import annotations
 
 import numpy as np
-from scipy.spatial import ConvexHull, cKDTree
+from scipy.spatial import ConvexHull
 from scipy.spatial import QhullError
 
 from equipose.core.errors import InvalidPointsError
+from equipose.core.neighbours import NearestNeighbours
 
 __all__ = ["visible_mask", "view_residuals", "view_rescore", "DEFAULT_EXPONENT", "INCUMBENT_MARGIN", "VIEW_AMBIGUOUS_MARGIN",
            "COPY_SUPPORT_WEIGHT"]
@@ -79,11 +80,11 @@ def view_residuals(observed: np.ndarray, template: np.ndarray, rotations: np.nda
             or R.ndim != 3 or R.shape[1:] != (3, 3) or t.shape != (len(R), 3):
         raise InvalidPointsError(f"view_residuals needs observed [N, 3], template [M ≥ 4, 3], rotations [J, 3, 3] and "
                                  f"translations [J, 3], got {x.shape}, {Y.shape}, {R.shape}, {t.shape}")
-    obs_tree = cKDTree(x)
+    obs_tree = NearestNeighbours(x)
     out = np.empty(len(R))
     for j in range(len(R)):
         posed = Y @ R[j].T + t[j]                                               # [M, 3] = R y + t
-        d_obs, _ = cKDTree(posed).query(x)                                      # [N] observed → template
+        d_obs, _ = NearestNeighbours(posed).query(x)                                      # [N] observed → template
         seen = posed[visible_mask(posed, viewpoint, exponent)]                  # [V, 3]
         d_seen, _ = obs_tree.query(seen)                                        # [V] visible template → observed
         out[j] = float(np.mean(d_obs ** 2) + np.mean(d_seen ** 2))

@@ -1,6 +1,7 @@
 """Stage ``polish``: more ICP iterations on the selected pose after re-scoring, on every point of the crop.
 
-Options: ``iters`` ("auto": the file's ``refine_calibration`` polish when its re-scoring runs; 0 = off).
+Options: ``iters`` ("auto": the file's ``refine_calibration`` polish when its re-scoring runs; 0 = off), ``points``
+("cloud": every point of the crop; "input": the model input's N points).
 
 Convention: ICP in the learned frame against the re-scoring's template, then calibrated (model units).
 """
@@ -20,10 +21,10 @@ __all__ = ["PolishStage"]
 class PolishStage(Stage):
     name = "polish"
     after = "select"
-    options = {"iters": "auto"}
+    options = {"iters": "auto", "points": "cloud"}
 
-    def __init__(self, iters: int, bidirectional: bool):
-        self.iters, self.bidirectional = iters, bidirectional
+    def __init__(self, iters: int, bidirectional: bool, points: str = "cloud"):
+        self.iters, self.bidirectional, self.points = iters, bidirectional, points
 
     @classmethod
     def build(cls, spec, options, context):
@@ -37,17 +38,20 @@ class PolishStage(Stage):
         elif n and rescore is None:
             raise ConfigError("polish is part of the ICP re-scoring (ICP iterations on the selected pose after "
                               "re-scoring): it needs refine > 0 (or leave polish='auto')")
-        return cls(n, not spec.partial) if n else None
+        if options["points"] not in ("cloud", "input"):
+            raise ConfigError(f"polish points must be 'cloud' or 'input', got {options['points']!r}")
+        return cls(n, not spec.partial, options["points"]) if n else None
 
     def describe(self) -> dict:
-        return {"iters": self.iters}
+        return {"iters": self.iters, "points": self.points}
 
     def run(self, state: ObjectState) -> None:
         if not state.rescored or state.selection is None:
             return
         i = state.selection.index
         R_l, t_l = state.learned
-        Rp, tp, _ = icp_multi(state.every_point, state.template, R_l[i][None], t_l[i][None], iters=self.iters,
+        x = state.every_point if self.points == "cloud" else state.points
+        Rp, tp, _ = icp_multi(x, state.template, R_l[i][None], t_l[i][None], iters=self.iters,
                               bidirectional=self.bidirectional)
         Rp, tp = apply_calibration(Rp, tp, *state.calibration)                  # [1, 3, 3], [1, 3] category frame
         state.R[i], state.t[i] = Rp[0], tp[0]

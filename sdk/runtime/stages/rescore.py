@@ -3,7 +3,8 @@ canonical shape, re-ranked by residual (``equipose.runtime.refine``); skipped un
 
 Options: ``k`` hypotheses ("auto": the file's ``refine_calibration``; 0 = off), ``iters`` ICP iterations ("auto":
 the file's, else 10), ``densify`` (the template gains the midpoints to each point's N nearest neighbours,
-``equipose.runtime.template``; "auto": the file's). All starts run in one batched ICP.
+``equipose.runtime.template``; "auto": the file's), ``points`` observation points fitted ("all", or the first n of the
+FPS-ordered model input: an even subsample). All starts run in one batched ICP.
 
 Convention: model units, learned frame, centred camera frame of the model input; complete models fit both ways.
 """
@@ -32,10 +33,11 @@ def _int_option(name: str, value, low: int, high: int | None, meaning: str) -> i
 class RescoreStage(Stage):
     name = "rescore"
     after = "copies"
-    options = {"k": "auto", "iters": "auto", "densify": "auto"}
+    options = {"k": "auto", "iters": "auto", "densify": "auto", "points": "all"}
 
-    def __init__(self, k: int, iters: int, densify: int, bidirectional: bool):
+    def __init__(self, k: int, iters: int, densify: int, bidirectional: bool, points: int | None = None):
         self.k, self.iters, self.densify, self.bidirectional = k, iters, densify, bidirectional
+        self.points = points                                                    # None: every model input point
 
     @classmethod
     def build(cls, spec, options, context):
@@ -55,10 +57,13 @@ class RescoreStage(Stage):
             if densify and not k:
                 raise ConfigError("densify is part of the ICP re-scoring: it needs refine > 0 (or leave "
                                   "densify='auto')")
-        return cls(k, iters, densify, not spec.partial) if k else None
+        points = options["points"]
+        points = None if points == "all" else _int_option("rescore points", points, 16, None,
+                                                          "observation points fitted, or 'all'")
+        return cls(k, iters, densify, not spec.partial, points) if k else None
 
     def describe(self) -> dict:
-        return {"k": self.k, "iters": self.iters, "densify": self.densify}
+        return {"k": self.k, "iters": self.iters, "densify": self.densify, "points": self.points or "all"}
 
     def run(self, state: ObjectState) -> None:
         if state.up is not None:                                                # the up prior fits its own
@@ -71,7 +76,8 @@ class RescoreStage(Stage):
         if state.consensus is not None:                                         # the consensus in the same ICP
             R0 = np.concatenate([R0, state.consensus[0][None]])
             t0 = np.concatenate([t0, state.consensus[1][None]])
-        R, t, res = icp_multi(state.points, state.template, R0, t0, iters=self.iters,
+        x = state.points if self.points is None else state.points[: self.points]   # FPS prefix: an even subsample
+        R, t, res = icp_multi(x, state.template, R0, t0, iters=self.iters,
                               bidirectional=self.bidirectional)
         if state.consensus is not None:
             state.consensus = (R[-1], t[-1], state.consensus[2], float(res[-1]))
