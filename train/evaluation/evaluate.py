@@ -150,8 +150,10 @@ def _row(method, R, t, samples, symmetry, unsigned):
 def evaluate(*, category: str, mode: str, checkpoint=None, model_path=None, data_root=None, limit: int | None = None,
              icp_templates: int = 3, icp_points: int = 256, icp_iters: int = 20, template_points: int = 512,
              icp_samples: int | None = None, refine=None, copies=None, exclude=(), up: str | None = None,
-             seed: int = 0, cache_dir=None, progress: bool = True, log=print) -> dict:
-    """Run both methods on one test set; returns the result dict (JSON layout above) plus ``_errors`` arrays."""
+             seed: int = 0, cache_dir=None, progress: bool = True, log=print, profile: str = "default",
+             stages: dict | None = None) -> dict:
+    """Run both methods on one test set; returns the result dict (JSON layout above) plus ``_errors`` arrays.
+    ``profile`` / ``stages``: the SDK's profile and stage options (``PoseEstimator(profile=..., stages=...)``)."""
     root = data_root or default_data_root()
     if (checkpoint is None) == (model_path is None):
         raise ConfigError("give exactly one of --checkpoint or --model")
@@ -172,7 +174,7 @@ def evaluate(*, category: str, mode: str, checkpoint=None, model_path=None, data
     else:
         from equipose.runtime.estimator import PoseEstimator
         est = PoseEstimator(model_path, refine="auto" if refine is None else refine,
-                            copies="auto" if copies is None else copies)
+                            copies="auto" if copies is None else copies, profile=profile, stages=stages)
         num_points, symmetry, scale = est.num_points, est.symmetry, est.scale
     unsigned = category == "can"
     ds = test_dataset(root, category, mode, num_points, limit=limit, cache_dir=cache_dir)
