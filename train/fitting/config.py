@@ -8,52 +8,76 @@ from __future__ import annotations
 
 import dataclasses
 import json
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 from equipose.core.errors import ConfigError
 
 __all__ = ["TrainConfig", "check_config"]
 
 
+def _opt(default, text: str, **meta):
+    """A ``TrainConfig`` field whose ``equipose train --field-name`` flag has this help (``{presets}``: the preset
+    names) and, in ``meta``, e.g. ``choices``."""
+    return field(default=default, metadata={"help": text, **meta})
+
+
 @dataclass
 class TrainConfig:
-    """Every training option (the ``--config`` JSON uses these names)."""
-    category: str = "airplane"
-    mode: str = "complete"                # complete | partial
-    preset: str = "small"
-    steps: int = 1000
-    out: str = "runs/train"
-    batch_size: int = 8
-    lr: float = 5e-4
-    lr_gamma: float = 0.9995              # ExponentialLR per epoch (spec §5)
-    val_every: int = 250
-    ckpt_every: int = 100
-    val_size: int = 50                    # fixed validation subset (test split, seeded rotations)
-    calib_size: int = 64                  # category-frame training inputs for the validation-time calibration
-    seed: int = 0
-    threads: int = 1
-    data_root: str = ""
-    train_limit: int | None = None        # first K training instances only (tests, quick runs)
-    views: int = 10                       # partial: rendered views per training instance
-    test_views: int = 5                   # partial: rendered views per test instance
-    cache_dir: str = ""
-    device: str = ""                      # "" = cuda when present, else cpu
-    init: str = ""                        # warm start: weights of this checkpoint (same preset and mode), fresh
-                                          # optimiser and step 0 (e.g. a related category); ignored on --resume
-    freeze: str = ""                      # comma-separated submodules kept fixed: blocks, pose_head, inv_head, decoder
-    teacher: str = ""                     # partial only: distil from this complete-shape checkpoint (distill.py)
-    teacher_refine: int = 5               # teacher's ICP re-scoring of its k best hypotheses (0 = plain network)
-    teacher_priors: str = ""              # teacher's poses through frame priors, e.g. "footprint,mirror:x"
-    teacher_flip: str = ""                # and through the flip stage of this model's flip_templates (name / .onnx)
-    select_weight: float = 0.0            # distillation: weight of the hypothesis-selection cross-entropy
-    shape_weight: float = 1.0             # distillation: weight of the canonical-shape chamfer to the teacher's shape
-    view_weight: float = 0.0              # distillation: weight of the view's fit to that shape at the teacher pose
-    cloud_weight: float = 0.0             # distillation: weight of the chamfer to the complete cloud, teacher frame
-    drift_weight: float = 0.0             # distillation: weight of how far ICP of the view onto it leaves that pose
-    drift_iters: int = 10                 # distillation: ICP iterations of that drift (losses.icp_drift)
-    rotate_augment: bool = False          # distillation: views turned by random rotations (augment.rotate_views)
-    symmetry_weight: float = 0.0          # complete, symmetric category: weight of model.axial_symmetry_loss
-    minutes: float = 0.0                  # > 0: stop (validate, save) once training steps took this many minutes
+    """Every training option. The ``--config`` JSON uses these names, and ``equipose train`` has one flag per field
+    (``batch_size`` → ``--batch-size``; type from the annotation, help from the field's metadata)."""
+    category: str = _opt("airplane", "ModelNet40 or tabletop category")
+    mode: str = _opt("complete", "complete clouds or rendered partial depth", choices=("complete", "partial"))
+    preset: str = _opt("small", "model preset: one of {presets} ('edge' is the deployment preset)")
+    steps: int = _opt(1000, "optimisation steps in total (a resumed run continues to this)")
+    out: str = _opt("runs/train", "output folder (latest.pt, log.jsonl, config.json)")
+    batch_size: int = _opt(8, "samples per step and process")
+    lr: float = _opt(5e-4, "Adam learning rate (the paper's)")
+    lr_gamma: float = _opt(0.9995, "learning-rate factor per epoch (ExponentialLR, spec §5)")
+    val_every: int = _opt(250, "steps between validations")
+    ckpt_every: int = _opt(100, "steps between checkpoints")
+    val_size: int = _opt(50, "validation subset size (test split, seeded rotations)")
+    calib_size: int = _opt(64, "category-frame training inputs of the validation-time calibration")
+    seed: int = _opt(0, "random seed")
+    threads: int = _opt(1, "torch CPU threads")
+    data_root: str = _opt("", "shared data folder (default $EQUIPOSE_DATA, else ../shared/data)")
+    train_limit: int | None = _opt(None, "use only the first K training instances (tests, quick runs)")
+    views: int = _opt(10, "partial: rendered views per training instance")
+    test_views: int = _opt(5, "partial: rendered views per test instance")
+    cache_dir: str = _opt("", "partial: render cache folder (default data_cache/)")
+    device: str = _opt("", "cpu | cuda | cuda:K (default: cuda when present, else cpu)")
+    init: str = _opt("", "warm start from this checkpoint's weights (same preset and mode; fresh optimiser, step 0), "
+                         "e.g. a trained related category; ignored on --resume")
+    freeze: str = _opt("", "comma-separated submodules kept fixed (blocks, pose_head, inv_head, decoder), e.g. "
+                           "'decoder' when fine-tuning a complete model on partial views")
+    teacher: str = _opt("", "partial mode: distil from this complete-shape checkpoint of the same category (its pose "
+                            "and canonical shape on the complete cloud of each rendered view; no pose labels)")
+    teacher_refine: int = _opt(5, "teacher's ICP re-scoring of its k best hypotheses (0 = plain network)")
+    teacher_priors: str = _opt("", "distillation: pass the teacher's poses through these frame priors (mirror plane / "
+                                   "footprint of each complete training cloud, equipose.runtime.frame_priors), e.g. "
+                                   "'footprint,mirror:x'")
+    teacher_flip: str = _opt("", "distillation: settle the teacher's half-turn flips with the flip stage of this "
+                                 "model's flip_templates metadata (a shipped name or .onnx, e.g. airplane-complete)")
+    select_weight: float = _opt(0.0, "distillation: weight of the cross-entropy that makes the student's own score "
+                                     "pick the best hypothesis")
+    shape_weight: float = _opt(1.0, "distillation: weight of the chamfer between the student's canonical shape and "
+                                    "the teacher's (the SDK's ICP re-scoring fits the view to that shape)")
+    view_weight: float = _opt(0.0, "distillation: weight of the observed points' distance to the student's "
+                                   "canonical shape at the teacher's pose (where the view lies is what ICP "
+                                   "re-scoring fits)")
+    cloud_weight: float = _opt(0.0, "distillation: weight of the chamfer between the student's canonical shape and "
+                                    "the complete training cloud carried into the teacher's frame by its pose")
+    drift_weight: float = _opt(0.0, "distillation: weight of how far --drift-iters ICP iterations of the view onto "
+                                    "the student's canonical shape move from the teacher's pose (asks that pose to "
+                                    "be where the SDK's ICP re-scoring settles)")
+    drift_iters: int = _opt(10, "distillation: ICP iterations of the drift term (losses.icp_drift)")
+    rotate_augment: bool = _opt(False, "distillation: turn each training view about its centroid by a uniform random "
+                                       "rotation (its teacher pose with it), beyond the 60 rotations the network is "
+                                       "exactly equivariant to")
+    symmetry_weight: float = _opt(0.0, "complete mode, rotationally symmetric category: weight of the loss that "
+                                       "keeps the predicted canonical shape symmetric about its z axis, so that z is "
+                                       "every instance's symmetry axis rather than its longest direction")
+    minutes: float = _opt(0.0, "wall-clock budget: stop (validate, save) once this invocation's training steps took "
+                               "this many minutes, validation excluded; --steps still caps it (0 = no budget)")
 
     @classmethod
     def from_sources(cls, config_file=None, **overrides) -> "TrainConfig":
