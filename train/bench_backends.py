@@ -12,7 +12,7 @@ import numpy as np
 
 from equipose.core.presets import ModelConfig
 from equipose.preprocess import prepare_points
-from equipose.runtime.backends import register_backend
+from equipose.bench.backends import register_backend
 
 __all__ = ["torch_forward", "setup_torch", "setup_icp60"]
 
