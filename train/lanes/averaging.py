@@ -7,8 +7,7 @@ averaged floating-point tensors (BatchNorm running statistics included) and no o
 exports and ships like any checkpoint. Snapshots of the same step are counted once (a copy loop that outlives its
 lane, or a lane between two saves, copies one checkpoint many times; counting each copy would weight it that often).
 
-Measured (2026-11-24, 500 test views, 8 copies): chair-partial, 7 snapshots over 136.4k–139.6k steps 4.15° / 0.56
-against 4.37° / 0.56 for a single checkpoint of the same lane at 134.4k.
+What it gives the shipped students: docs/results/models/README.md (v0.13 onwards).
 """
 from __future__ import annotations
 

@@ -162,7 +162,9 @@ def run_steps(steps: list, *, dry_run: bool = False, out=print) -> None:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m equipose.train.release", description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(prog="python -m equipose.train.release",
+                                 description="Ship a model from its recipe (train/release/recipes/MODEL.toml): "
+                                             "calibrate, export fp32 + int8, add its stages, evaluate.")
     ap.add_argument("model", help="the shipped model to make (sdk/models/MODEL.onnx)")
     ap.add_argument("--recipe", help="recipe file (default: train/release/recipes/MODEL.toml)")
     ap.add_argument("--state", help="training-state folder instead of the recipe's (e.g. a weight average); "
