@@ -1,13 +1,14 @@
 """Nearest-neighbour queries against one fixed point set: the inner loop of every ICP in the SDK.
 
-Two backends, chosen by the reference set's size (``choose_backend``; measured side by side by
+Three backends, chosen by the reference set's size (``choose_backend``; measured side by side by
 ``python tools/bench/nn_backends.py``, figures in docs/benchmarks.md):
 
 - ``"gemm"``: every query against every reference point as one float32 matrix product. With the reference points
   centred and stored as ``[−2y, |y|²]`` ([4, M]), ``[x, 1] · [−2y, |y|²]ᵀ = |x − y|² − |x|²``, so the argmin over a
   row is the nearest neighbour; one BLAS call covers all queries of all ICP starts at once. Exact up to float32
   rounding of near-ties (the returned distance is recomputed in float64 from the chosen pair).
-- ``"kdtree"``: scipy's ``cKDTree``, for reference sets too large for a dense [Q, M] product.
+- ``"small_gicp"``: the k-d tree of small_gicp (C++, one thread), for larger reference sets;
+- ``"kdtree"``: scipy's ``cKDTree``, where small_gicp is not installed.
 
 Convention: points are row arrays [M, 3] / [Q, 3] in one frame and one unit (the SDK uses model units); distances
 are Euclidean in that unit.
@@ -21,14 +22,25 @@ from equipose.core.errors import ConfigError, InvalidPointsError
 
 __all__ = ["NearestNeighbours", "choose_backend", "BACKENDS", "GEMM_MAX_POINTS", "GEMM_CHUNK_ENTRIES"]
 
-BACKENDS = ("gemm", "kdtree")
-GEMM_MAX_POINTS = 2048          # reference sets up to this size use the dense product (larger: cKDTree)
+BACKENDS = ("gemm", "small_gicp", "kdtree")
+GEMM_MAX_POINTS = 512           # reference sets up to this size use the dense product (larger: a k-d tree)
 GEMM_CHUNK_ENTRIES = 1 << 16    # [Q, M] float32 blocks of 256 kB stay in cache (and off BLAS threads)
 
 
+def _small_gicp():
+    try:
+        import small_gicp
+    except ImportError:
+        return None
+    return small_gicp
+
+
 def choose_backend(num_points: int) -> str:
-    """The backend for a reference set of ``num_points`` points: "gemm" up to ``GEMM_MAX_POINTS``, else "kdtree"."""
-    return "gemm" if num_points <= GEMM_MAX_POINTS else "kdtree"
+    """The backend for a reference set of ``num_points`` points: "gemm" up to ``GEMM_MAX_POINTS``, else
+    "small_gicp" (or "kdtree" where small_gicp is not installed)."""
+    if num_points <= GEMM_MAX_POINTS:
+        return "gemm"
+    return "kdtree" if _small_gicp() is None else "small_gicp"
 
 
 class NearestNeighbours:
@@ -36,7 +48,7 @@ class NearestNeighbours:
 
     Args:
         points: [M ≥ 1, 3] finite reference points.
-        backend: "auto" (``choose_backend``), "gemm" or "kdtree".
+        backend: "auto" (``choose_backend``), "gemm", "small_gicp" or "kdtree".
     """
 
     def __init__(self, points, backend: str = "auto"):
@@ -44,7 +56,10 @@ class NearestNeighbours:
         if P.ndim != 2 or P.shape[1] != 3 or len(P) < 1:
             raise InvalidPointsError(f"nearest-neighbour reference points must be [M ≥ 1, 3], got {P.shape}")
         if backend not in ("auto",) + BACKENDS:
-            raise ConfigError(f"nearest-neighbour backend must be 'auto', 'gemm' or 'kdtree', got {backend!r}")
+            raise ConfigError(f"nearest-neighbour backend must be 'auto' or one of {', '.join(BACKENDS)}, got "
+                              f"{backend!r}")
+        if backend == "small_gicp" and _small_gicp() is None:
+            raise ConfigError("the small_gicp backend needs the small_gicp package: pip install small_gicp")
         self.points = P                                                         # [M, 3]
         self.backend = choose_backend(len(P)) if backend == "auto" else backend
         if self.backend == "gemm":
@@ -52,6 +67,8 @@ class NearestNeighbours:
             Pc = (P - self._centre).astype(np.float32)                          # [M, 3]
             self._table = np.ascontiguousarray(
                 np.concatenate([-2.0 * Pc, np.einsum("mi,mi->m", Pc, Pc)[:, None]], 1).T)   # [4, M]
+        elif self.backend == "small_gicp":
+            self._gicp = _small_gicp().KdTree(P)
         else:
             self._tree = cKDTree(P)
 
@@ -67,6 +84,9 @@ class NearestNeighbours:
         if self.backend == "kdtree":
             d, i = self._tree.query(q)
             return d.reshape(lead), i.reshape(lead)
+        if self.backend == "small_gicp":
+            i, d2 = self._gicp.batch_nearest_neighbor_search(q)
+            return np.sqrt(np.asarray(d2, np.float64)).reshape(lead), np.asarray(i, np.int64).reshape(lead)
         i = self.nearest_indices(q)                                             # [Q]
         diff = q - self.points[i]                                               # [Q, 3]
         d = np.sqrt(np.einsum("qi,qi->q", diff, diff))
@@ -77,6 +97,8 @@ class NearestNeighbours:
         q = np.asarray(queries, np.float64).reshape(-1, 3)
         if self.backend == "kdtree":
             return self._tree.query(q)[1]
+        if self.backend == "small_gicp":
+            return np.asarray(self._gicp.batch_nearest_neighbor_search(q)[0], np.int64)
         Q = len(q)
         A = np.empty((Q, 4), np.float32)                                        # [Q, 4] = [x − c, 1]
         A[:, :3] = q - self._centre

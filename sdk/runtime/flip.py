@@ -33,14 +33,15 @@ FLIP_OBSERVED_POINTS = 128                   # observation points used by the te
 FLIP_AMBIGUOUS_MARGIN = 0.1                  # relative gap between the two fits below which front/back stays open
 
 
-def flip_scores(model_points, rotation, translation, templates, axes=("z",), up=None,
-                partial: bool = True) -> tuple:
+def flip_scores(model_points, rotation, translation, templates, axes=("z",), up=None, partial: bool = True,
+                observed_points: int = FLIP_OBSERVED_POINTS, iters: int = FLIP_ICP_ITERS,
+                coarse_iters: int = FLIP_COARSE_ITERS) -> tuple:
     """(candidate rotations [C, 3, 3], best template residual [C] model units² (lower better), that fit's rotation
     [C, 3, 3]): the pose first, then its half turn about each of ``axes`` (only "z" with ``up``).
 
     Convention: as the module's; ``up`` None or the unit camera-frame up of the up prior (rotation then held)."""
     x = np.asarray(model_points, np.float64)
-    x = x[farthest_point_order(x, min(FLIP_OBSERVED_POINTS, len(x)))]          # [n, 3]
+    x = x[farthest_point_order(x, min(observed_points, len(x)))]               # [n, 3]
     axes = [a for a in axes if up is None or a == "z"]
     cands = np.stack([rotation] + [rotation @ HALF_TURNS[a] for a in axes])     # [C, 3, 3]
     Y = np.asarray(templates, np.float64)                                       # [T, M, 3]
@@ -55,9 +56,9 @@ def flip_scores(model_points, rotation, translation, templates, axes=("z",), up=
     R0 = np.tile(cands, (T, 1, 1))                                              # [T·C, 3, 3] every pair at once
     t0 = np.broadcast_to(np.asarray(translation, np.float64), (T * C, 3))
     which = np.repeat(np.arange(T), C)                                          # [T·C] template of each start
-    coarse = min(FLIP_COARSE_ITERS, FLIP_ICP_ITERS)
+    coarse = min(coarse_iters, iters)
     R1, t1, res = fit(R0, t0, which, coarse)
     best = res.reshape(T, C).argmin(0)                                          # [C] template kept per candidate
     keep = best * C + np.arange(C)                                              # [C] rows of (template, candidate)
-    R2, _, fine = fit(R1[keep], t1[keep], best, FLIP_ICP_ITERS - coarse)
+    R2, _, fine = fit(R1[keep], t1[keep], best, iters - coarse)
     return cands, fine, R2                                                      # [C, 3, 3], [C], [C, 3, 3]

@@ -51,6 +51,7 @@ def score_sets(weights: dict, sets: np.ndarray) -> np.ndarray:
     return _mlp(g, weights["head"], last_relu=False)[..., 0]                           # [...]
 
 
-def turn_scores(weights: dict, model_points, rotation, translation, axes=("x", "y", "z")) -> np.ndarray:
-    """[1 + len(axes)] scores of the pose and of its half turns about ``axes``."""
-    return score_sets(weights, turned_sets(model_points, rotation, translation, axes))
+def turn_scores(weights: dict, model_points, rotation, translation, axes=("x", "y", "z"),
+                points: int = TURN_POINTS) -> np.ndarray:
+    """[1 + len(axes)] scores of the pose and of its half turns about ``axes`` (``points`` of the view scored)."""
+    return score_sets(weights, turned_sets(model_points, rotation, translation, axes, points))

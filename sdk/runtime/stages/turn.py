@@ -1,6 +1,7 @@
 """Stage ``turn`` (metadata ``turn_classifier``): a small learned scorer of the view's canonical points decides
 between the pose and its half turns (``equipose.runtime.turn_classifier``); under an up prior only the turn about up.
 Result extra ``turn_margin``: the pose's lead in logits (below the file's ``ambiguous_margin``: ``ambiguous``).
+Option ``points``: view points scored (evenly spaced along the model input).
 
 Convention: model units, centred camera frame; rotation category → camera.
 """
@@ -8,7 +9,8 @@ from __future__ import annotations
 
 from equipose.runtime.hypotheses import HALF_TURNS
 from equipose.runtime.stage import ObjectState, Stage, register_stage
-from equipose.runtime.turn_classifier import turn_scores
+from equipose.core.errors import ConfigError
+from equipose.runtime.turn_classifier import TURN_POINTS, turn_scores
 
 __all__ = ["TurnStage"]
 
@@ -18,23 +20,28 @@ class TurnStage(Stage):
     name = "turn"
     metadata_key = "turn_classifier"
     after = "flip"
+    options = {"points": TURN_POINTS}
 
-    def __init__(self, turn: dict):
-        self.turn = turn
+    def __init__(self, turn: dict, points: int = TURN_POINTS):
+        self.turn, self.points = turn, int(points)
 
     @classmethod
     def build(cls, spec, options, context):
         tc = spec.get(cls.metadata_key)
-        return None if tc is None else cls(tc)
+        n = options["points"]
+        if isinstance(n, bool) or not isinstance(n, int) or n < 16:
+            raise ConfigError(f"turn points must be an int ≥ 16, got {n!r}")
+        return None if tc is None else cls(tc, n)
 
     def describe(self) -> dict:
-        return {"axes": list(self.turn["axes"]), "margin": self.turn["margin"]}
+        return {"axes": list(self.turn["axes"]), "margin": self.turn["margin"], "points": self.points}
 
     def run(self, state: ObjectState) -> None:
         axes = [a for a in self.turn["axes"] if state.up is None or a == "z"]  # the up prior holds x and y
         if not axes:
             return
-        s = turn_scores(self.turn["weights"], state.points, state.rotation, state.translation, axes)   # [1 + A]
+        s = turn_scores(self.turn["weights"], state.points, state.rotation, state.translation, axes,
+                        self.points)                                            # [1 + A]
         k = int(s[1:].argmax())
         if s[1 + k] - s[0] > self.turn["margin"]:
             state.set_pose(state.rotation @ HALF_TURNS[axes[k]])
