@@ -57,9 +57,14 @@ def fit_handle(points: np.ndarray, *, bands: int = 6, bins: int = 36, min_share:
     if p.ndim != 2 or p.shape[1] != 3 or len(p) < 50:
         raise InvalidPointsError(f"fit_handle needs an [N ≥ 50, 3] cloud, got shape {p.shape}")
     band = _band_of(p[:, 2], _height_bands(p[:, 2], bands))                         # [N] height band
+    counts = np.bincount(band, minlength=bands)                                      # [bands]
+    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])                           # [bands] first of each, sorted
 
     def band_radius(r):                                                              # [N] median radius of its band
-        med = np.array([np.median(r[band == k]) if np.any(band == k) else np.median(r) for k in range(bands)])
+        rs = r[np.lexsort((r, band))]                                                # by band, then radius
+        hi = np.minimum(starts + counts // 2, len(r) - 1)                            # upper middle of each band
+        lo = np.where(counts % 2 == 1, hi, np.maximum(hi - 1, 0))                    # lower middle (even counts)
+        med = np.where(counts > 0, 0.5 * (rs[lo] + rs[hi]), np.median(r))            # [bands] = np.median per band
         return med[band]
 
     c = np.median(p[:, :2], axis=0) if centre is None else np.asarray(centre, np.float64).reshape(2)
