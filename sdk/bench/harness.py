@@ -81,7 +81,8 @@ def _timed(fn) -> float:
 # One backend, in this process
 
 def run_backend(backend: str, model_path: str, threads: int = 2, objects: int = 1, runs: int = 100,
-                warmup: int = 5, checkpoint: str | None = None, refine="auto", adaptive_threads: bool = True) -> dict:
+                warmup: int = 5, checkpoint: str | None = None, refine="auto", adaptive_threads: bool = True,
+                profile: str = "default") -> dict:
     """Measure one backend in this process. Returns a row dict (end-to-end and per-stage percentiles, fps, rss).
 
     ``threads`` is the budget of every backend; onnxruntime follows ``PoseEstimator(adaptive_threads=...)`` within it
@@ -90,7 +91,7 @@ def run_backend(backend: str, model_path: str, threads: int = 2, objects: int = 
 
     spec = get_backend(backend)
     path = spec.model_file(model_path) if spec.model_file else model_path
-    est = PoseEstimator(path, threads=threads, refine=refine, adaptive_threads=adaptive_threads)
+    est = PoseEstimator(path, threads=threads, refine=refine, adaptive_threads=adaptive_threads, profile=profile)
     frame, box = _sample_frame()
     boxes = [box] * objects
     note, parity = spec.setup(est, frame, box, threads=threads, checkpoint=checkpoint) if spec.setup else ("", None)
@@ -104,6 +105,9 @@ def run_backend(backend: str, model_path: str, threads: int = 2, objects: int = 
         for k in ("crop", "fps", "selection"):                                  # per object → per frame
             st[k] = sum(r.timings[k] for r in results)
         st["inference"] = results[0].timings["inference"]                       # one batched run per frame
+        for r in results:                                                       # the pipeline's stages, per frame
+            for name, ms in r.timings.get("stages", {}).items():
+                st["stage:" + name] = st.get("stage:" + name, 0.0) + ms
         return st
 
     for _ in range(warmup):
@@ -115,6 +119,9 @@ def run_backend(backend: str, model_path: str, threads: int = 2, objects: int = 
     row["peak_rss_mb"] = _peak_rss_mb()
     row["model_mb"] = os.path.getsize(path) / 2 ** 20 if spec.runs_model_file else None
     row["stages"] = {k: percentiles([s[k] for s in samples]) for k in STAGES}
+    row["pipeline"] = {k[6:]: percentiles([s.get(k, 0.0) for s in samples])["p50_ms"]
+                       for k in samples[0] if k.startswith("stage:")}             # p50 ms of each pipeline stage
+    row["profile"] = profile
     row["runs"], row["threads"], row["objects"], row["refine"] = runs, threads, objects, est.refine
     row["copies"] = est.copies
     row["threads_used"] = 1 if spec.runs_model_file and est.uses_single_thread(objects * est.copies) else threads
@@ -129,9 +136,9 @@ def run_backend(backend: str, model_path: str, threads: int = 2, objects: int = 
 # Orchestration: one subprocess per backend
 
 def _run_isolated(backend, model_path, threads, objects, runs, warmup, checkpoint, refine="auto",
-                  adaptive_threads=True) -> dict:
+                  adaptive_threads=True, profile="default") -> dict:
     cmd = [sys.executable, "-m", "equipose.bench.harness", backend, model_path, str(threads), str(objects), str(runs),
-           str(warmup), checkpoint or "", str(refine), "1" if adaptive_threads else "0"]
+           str(warmup), checkpoint or "", str(refine), "1" if adaptive_threads else "0", profile]
     env = dict(os.environ, OMP_NUM_THREADS=str(threads), DEPTHAI_LEVEL="error")
     p = subprocess.run(cmd, capture_output=True, text=True, env=env)
     if p.returncode != 0:
@@ -142,7 +149,7 @@ def _run_isolated(backend, model_path, threads, objects, runs, warmup, checkpoin
 
 def run_benchmark(model_path: str, backends=BACKENDS, threads: int = 2, objects: int = 1, runs: int = 100,
                   warmup: int = 5, checkpoint: str | None = None, isolate: bool = True, refine="auto",
-                  adaptive_threads: bool = True) -> dict:
+                  adaptive_threads: bool = True, profile: str = "default") -> dict:
     """All requested backends on the same frame; returns ``{"model", "threads", "points", "objects", "rows",
     "ratios", ...}``; ``ratios[backend]`` = its end-to-end and inference-stage p50 ÷ onnxruntime-fp32's."""
     from equipose.runtime.estimator import PoseEstimator
@@ -156,7 +163,7 @@ def run_benchmark(model_path: str, backends=BACKENDS, threads: int = 2, objects:
     for b in backends:
         row = (_run_isolated if isolate else lambda *a: run_backend(*a))(b, str(model_path), threads, objects, runs,
                                                                          warmup, checkpoint, refine,
-                                                                         adaptive_threads)
+                                                                         adaptive_threads, profile)
         rows.append(row)
         print(f"  measured {b}: " + (f"p50 {row['p50_ms']:.1f} ms" if "p50_ms" in row else row["error"]),
               file=sys.stderr, flush=True)
@@ -166,7 +173,7 @@ def run_benchmark(model_path: str, backends=BACKENDS, threads: int = 2, objects:
               for r in rows if ref and "p50_ms" in r}
     return {"model": str(model_path), "preset": cfg.name, "threads": threads, "points": est.num_points,
             "refine": rows[0].get("refine") if rows else None, "copies": rows[0].get("copies") if rows else None,
-            "adaptive_threads": adaptive_threads,
+            "adaptive_threads": adaptive_threads, "profile": profile,
             "objects": objects, "macs": macs, "matmul_peak_gmacs": peak, "bound_ms": macs * objects / peak / 1e6,
             "rows": rows, "ratios": ratios}
 
@@ -176,6 +183,7 @@ def format_table(result: dict) -> str:
     rows = result["rows"]
     lines = [f"model {result['model']} (preset {result['preset']}, N={result['points']}, "
              f"{result['macs'] / 1e9:.3f} GMAC/object), {result['threads']} thread(s), {result['objects']} object(s)/frame"
+             f", profile {result.get('profile', 'default')}"
              f", ICP re-scoring of {result.get('refine') or 0} hypotheses (selection stage)"
              + (f", {result['copies']} rotated input copies per object" if (result.get("copies") or 1) > 1 else ""),
              f"MatMul peak {result['matmul_peak_gmacs']:.1f} GMAC/s → bound {result['bound_ms']:.2f} ms/frame",
@@ -196,13 +204,18 @@ def format_table(result: dict) -> str:
                      f"{s['fps']['p50_ms']:>6.2f} {s['inference']['p50_ms']:>7.2f} {inf_ratio:>7.2f} "
                      f"{s['selection']['p50_ms']:>6.2f} {r.get('threads_used', r['threads']):>7}"
                      + (f"   ({r['note']})" if r.get("note") else ""))
+    first = next((r for r in rows if r.get("pipeline")), None)
+    if first:
+        lines.append("selection by stage (p50 ms, " + first["backend"] + "): " +
+                     " · ".join(f"{k} {v:.2f}" for k, v in first["pipeline"].items() if v >= 0.01))
     return "\n".join(lines)
 
 
 def _worker_main(argv):
-    backend, model, threads, objects, runs, warmup, ckpt, refine, adaptive = argv
+    backend, model, threads, objects, runs, warmup, ckpt, refine, adaptive, profile = argv
     row = run_backend(backend, model, int(threads), int(objects), int(runs), int(warmup), ckpt or None,
-                      "auto" if refine == "auto" else int(refine), adaptive_threads=adaptive == "1")
+                      "auto" if refine == "auto" else int(refine), adaptive_threads=adaptive == "1",
+                      profile=profile)
     sys.stdout.write(json.dumps(row) + "\n")
 
 

@@ -30,6 +30,8 @@ def add_arguments(p):
     p.add_argument("--sweep", action="store_true",
                    help="latency vs N (256, 512, 1024, 2048), threads (1, 2) and objects per frame (1..8), fp32 only")
     p.add_argument("--json", dest="json_path", default=None, help="write the results as JSON to this file")
+    p.add_argument("--profile", default="default", choices=["fast", "default", "accurate"],
+                   help="the pipeline's speed / accuracy point (PoseEstimator(profile=...)), every backend")
     p.add_argument("--refine", default="auto",
                    help="ICP re-scoring of K hypotheses in every backend (default 'auto': the model file's setting)")
 
@@ -93,7 +95,7 @@ def run(args) -> int:
     backends = ["onnxruntime-fp32"] + [COMPARE[c] for c in extra]
     result = run_benchmark(model, backends, threads=args.threads, objects=args.batch, runs=args.runs,
                            warmup=args.warmup, checkpoint=args.checkpoint, refine=refine,
-                           adaptive_threads=not args.fixed_threads)
+                           adaptive_threads=not args.fixed_threads, profile=args.profile)
     print(format_table(result))
     if args.json_path:
         pathlib.Path(args.json_path).write_text(json.dumps(result, indent=1))
