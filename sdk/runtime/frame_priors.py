@@ -72,7 +72,8 @@ def mirror_plane(points, normal, max_deg: float = MAX_DEG, iters: int = _MIRROR_
 
     Each iteration reflects the cloud, pairs every point with its nearest neighbour among the reflections' sources
     (the closest ``_MIRROR_TRIM`` of pairs), and takes the new normal as the dominant direction of the pair differences
-    and the offset from their midpoints. Stops before a step that would leave ``max_deg`` of ``normal``.
+    and the offset from their midpoints. Stops before a step that would leave ``max_deg`` of ``normal``, and at a
+    fixed point (a step that returns the plane it started from).
     Returns (unit normal [3] signed like ``normal``, offset d with the plane n·x = d, mean squared reflection
     residual).
     """
@@ -91,7 +92,10 @@ def mirror_plane(points, normal, max_deg: float = MAX_DEG, iters: int = _MIRROR_
         cand = V[:, 2] * np.sign(V[:, 2] @ n or 1.0)                         # dominant direction, signed like n
         if cand @ n0 < cos_max:
             break
-        n, d = cand, float(((a + b) / 2.0).mean(0) @ cand)
+        d_new = float(((a + b) / 2.0).mean(0) @ cand)
+        if d_new == d and np.array_equal(cand, n):                           # a fixed point: every further
+            break                                                            # iteration repeats this one
+        n, d = cand, d_new
     residual = float(np.mean(tree.query(P - 2.0 * (P @ n - d)[:, None] * n)[0] ** 2))
     return n, d, residual
 
