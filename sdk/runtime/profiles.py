@@ -1,8 +1,9 @@
 """Named profiles: points on the speed / accuracy curve of every model, as stage options (timm-style registry).
 
 ``PoseEstimator(M, profile=P)`` (CLI ``--profile``): ``"accurate"`` runs every stage with the settings the model
-file was calibrated for; ``"default"`` the settings chosen to keep accuracy within noise at ≤ 10 ms per object on
-2 cores; ``"fast"`` the plain network plus the file's metadata stages. Each profile holds options for all models
+file was calibrated for; ``"default"`` the fastest settings measured to keep each model's accuracy within noise of
+``"accurate"``; ``"fast"`` the network's own pose (no ICP) plus the stages that define what a result means (the
+turn classifier on 128 points, the cylinder axis, the handle). Each profile holds options for all models
 (``"*"``) and per shipped model (its name); measured accuracy and latency per model: docs/benchmarks.md.
 Options explicitly given to ``PoseEstimator`` (``refine=``, ``copies=``, ``stages=`` ...) win over the profile.
 """
@@ -14,10 +15,13 @@ from equipose.core.errors import ConfigError
 
 __all__ = ["PROFILES", "register_profile", "profile_options", "merge_stage_options"]
 
+FAST = {"copies": False, "rescore": False, "view": False, "polish": False, "rest_facet": False,
+        "frame_priors": False, "flip": False, "turn": {"points": 128}}      # the network's pose + cheap stages
+
 PROFILES: dict = {
     "accurate": {"*": {}},
     "default": {"*": {}},
-    "fast": {"*": {"rescore": False}},
+    "fast": {"*": FAST},
 }
 
 
