@@ -1,4 +1,4 @@
-"""Depth frame + box/mask → cleaned object points (region, depth gating, nearest-cluster pick, outlier removal).
+"""Depth frame + box/mask → cleaned object points (region, depth gating, object-cluster pick, outlier removal).
 
 Convention:
     ``depth`` [H, W] in a declared unit, ``K`` [3, 3], boxes ``(x, y, w, h)`` pixels, masks [H, W] bool (see
@@ -19,7 +19,8 @@ from equipose.preprocess.plane import find_support_plane
 from equipose.preprocess.sampling import MIN_POINTS
 from equipose.preprocess.validate import check_box, check_intrinsics, check_mask, depth_to_metres
 
-__all__ = ["CropResult", "check_crop_options", "crop_points", "statistical_outlier_mask", "organized_outlier_mask", "nearest_depth_cluster"]
+__all__ = ["CropResult", "check_crop_options", "crop_points", "statistical_outlier_mask", "organized_outlier_mask",
+           "nearest_depth_cluster", "depth_clusters", "box_object_cluster"]
 
 
 @dataclass
@@ -31,7 +32,9 @@ class CropResult:
         pixels: [P, 2] int64 (row, col) of each point in the depth frame.
         K: [3, 3] float64 intrinsics actually used (rescaled to the frame size if needed).
         diagnostics: counts after each stage (``region``, ``valid``, ``gated``, ``subsampled``, ``cluster``,
-            ``inliers``) and the chosen ``cluster_depth_m`` (box crops) — for logging and debugging.
+            ``inliers``), and for box crops the chosen ``cluster_depth_m``, the number of depth ``clusters`` large
+            enough to be the object and ``occluded_fraction`` (the share of the object's view taken by nearer
+            clusters, dropped).
     """
     points: np.ndarray
     pixels: np.ndarray
@@ -114,16 +117,56 @@ def nearest_depth_cluster(z: np.ndarray, gap_m: float = 0.03, rel_gap: float = 0
     P = len(z)
     if P == 0:
         return np.zeros(0, dtype=bool)
-    order = np.argsort(z, kind="stable")                                        # [P]
-    zs = z[order]                                                               # [P] sorted
-    gaps = np.diff(zs) > np.maximum(gap_m, rel_gap * zs[:-1])                   # [P-1]
-    labels_sorted = np.concatenate([[0], np.cumsum(gaps)])                      # [P] cluster id, nearest = 0
-    counts = np.bincount(labels_sorted)                                         # [C]
+    labels = depth_clusters(z, gap_m, rel_gap)                                  # [P], nearest = 0
+    counts = np.bincount(labels)                                                # [C]
     big = np.nonzero(counts >= max(1, min_fraction * P))[0]
     chosen = int(big[0]) if len(big) else int(np.argmax(counts))
-    keep = np.zeros(P, dtype=bool)
-    keep[order[labels_sorted == chosen]] = True
-    return keep
+    return labels == chosen
+
+
+def depth_clusters(z: np.ndarray, gap_m: float = 0.03, rel_gap: float = 0.03) -> np.ndarray:
+    """[P] cluster label of each depth in ``z`` [P] metres, 0 = nearest: sorted depths split wherever consecutive
+    values differ by more than max(``gap_m``, ``rel_gap`` · z)."""
+    order = np.argsort(z, kind="stable")                                        # [P]
+    zs = z[order]
+    gaps = np.diff(zs) > np.maximum(gap_m, rel_gap * zs[:-1])                   # [P-1]
+    labels = np.empty(len(z), np.int64)
+    labels[order] = np.concatenate([[0], np.cumsum(gaps)]) if len(z) else []
+    return labels
+
+
+def box_object_cluster(z: np.ndarray, rows: np.ndarray, cols: np.ndarray, box, min_fraction: float = 0.1,
+                       border: float = 0.08) -> tuple:
+    """The depth cluster a box prompt is drawn around, chosen by evidence instead of nearness.
+
+    Convention: ``z`` [P] metres, ``rows``, ``cols`` [P] frame pixels of the box's points; ``box`` (x0, y0, x1, y1)
+    pixel bounds. Among the depth clusters (``depth_clusters``) holding at least ``min_fraction`` of the points, each
+    scores share × (1 − its share of the box's border band, the outer ``border`` of each side) × exp(−2 d²), d the
+    offset of its pixel centroid from the box centre in half-box units: a detector's box is centred on its object
+    and touches it only at its extremes, while what stands in front (an occluder) sits off-centre and background
+    surrounds the object along the border. Returns ([P] bool, info {"clusters", "occluded_fraction": share of the
+    chosen cluster's view taken by nearer clusters, i.e. points in front of it / (those + its own)}).
+    """
+    P = len(z)
+    if P == 0:
+        return np.zeros(0, bool), {"clusters": 0, "occluded_fraction": 0.0}
+    labels = depth_clusters(z)
+    counts = np.bincount(labels)                                                # [C], label 0 nearest
+    x0, y0, x1, y1 = box
+    cx, cy, hw, hh = (x0 + x1) / 2.0, (y0 + y1) / 2.0, max((x1 - x0) / 2.0, 1.0), max((y1 - y0) / 2.0, 1.0)
+    band = ((cols - x0) < border * 2 * hw) | ((x1 - 1 - cols) < border * 2 * hw) | \
+        ((rows - y0) < border * 2 * hh) | ((y1 - 1 - rows) < border * 2 * hh)    # [P] in the border band
+    on_band = np.bincount(labels, weights=band, minlength=len(counts))         # [C]
+    u = np.bincount(labels, weights=cols, minlength=len(counts)) / np.maximum(counts, 1)
+    v = np.bincount(labels, weights=rows, minlength=len(counts)) / np.maximum(counts, 1)
+    offset2 = ((u - cx) / hw) ** 2 + ((v - cy) / hh) ** 2                       # [C]
+    score = counts / P * (1.0 - on_band / max(band.sum(), 1)) * np.exp(-2.0 * offset2)
+    score[counts < max(1, min_fraction * P)] = -1.0                             # too small to be the object
+    chosen = int(np.argmax(score)) if score.max() > 0 else int(np.argmax(counts))
+    front = int(counts[:chosen].sum())                                          # points nearer than the object
+    info = {"clusters": int((counts >= max(1, min_fraction * P)).sum()),
+            "occluded_fraction": round(front / max(front + int(counts[chosen]), 1), 4)}
+    return labels == chosen, info
 
 
 # ----------------------------------------------------------------------------------------------------------------------
@@ -175,8 +218,9 @@ def crop_points(depth, K, *, box=None, mask=None, depth_unit="mm", image_size=No
     plane removal (points less than ``plane_height`` above the frame's dominant plane, or beyond it, are dropped;
     ``support_plane`` = precomputed (normal, offset) from ``find_support_plane``; default on for a box without a
     mask, and skipped when the frame has no dominant plane or too few points would remain) → regular pixel-grid
-    subsampling to at most ``max_points`` → background rejection (nearest depth cluster; default on for a box
-    without a mask) → statistical outlier removal (``outlier_std``; 0 disables): on the pixel grid with its 8
+    subsampling to at most ``max_points`` → background rejection (default on for a box without a mask: the depth
+    cluster the box is drawn around, ``box_object_cluster``; what lies in front of it is reported as
+    ``diagnostics["occluded_fraction"]``) → statistical outlier removal (``outlier_std``; 0 disables): on the pixel grid with its 8
     neighbours (``organized_outlier_mask``) for the default ``outlier_k`` = 8, else k-d tree with k = ``outlier_k``.
     Raises ``DepthDtypeError``, ``DepthUnitError``, ``EmptyDepthError``, ``IntrinsicsError``, ``RegionError``,
     ``TooFewPointsError``. ``check_plausible=False`` skips the unit plausibility check (already-validated frames);
@@ -252,7 +296,11 @@ def crop_points(depth, K, *, box=None, mask=None, depth_unit="mm", image_size=No
     if reject_background is None:
         reject_background = box is not None and mask is None
     if reject_background:
-        keep = nearest_depth_cluster(z)                                         # [P]
+        if box is not None:                                                     # the cluster the box is drawn around
+            keep, info = box_object_cluster(z, rows, cols, (x0, y0, x1, y1))    # [P]
+            diag.update(info)
+        else:
+            keep = nearest_depth_cluster(z)                                     # [P]
         pts, rows, cols = pts[keep], rows[keep], cols[keep]
         diag["cluster"] = int(keep.sum())
         diag["cluster_depth_m"] = float(np.median(pts[:, 2]))

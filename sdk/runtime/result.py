@@ -109,6 +109,13 @@ class PoseResult:
         self.ambiguous = bool(self.ambiguous or not visible)
 
     @property
+    def occlusion(self) -> float | None:
+        """Box prompts: the share of the object's view that nearer depth clusters inside the box took (occluders in
+        front, dropped by the crop: ``crop["occluded_fraction"]``); None for masks and point input."""
+        v = self.crop.get("occluded_fraction") if self.crop else None
+        return None if v is None else float(v)
+
+    @property
     def quaternion(self) -> np.ndarray:
         """(w, x, y, z), w ≥ 0, of ``rotation``."""
         return matrix_to_quaternion(self.rotation)
@@ -169,6 +176,8 @@ class PoseResult:
             d["handle_visible"] = bool(self.handle_visible)
             d["handle_points"] = int(self.handle_points)
             d["handle_direction"] = np.round(self.handle_direction, 6).tolist()
+        if self.occlusion is not None:
+            d["occlusion"] = round(self.occlusion, 4)
         for k, v in self.extras.items():
             d[k] = np.round(v, 6).tolist() if isinstance(v, np.ndarray) else v
         if include_shape:

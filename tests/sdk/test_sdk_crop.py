@@ -136,3 +136,50 @@ def test_box_crop_removes_the_supporting_table():
     plain = crop_points(depth, K_VGA, box=box, remove_support_plane=False)
     rows, cols = plain.pixels.T
     assert truth[0][rows, cols].mean() < 0.9                                    # without it the table leaks in
+
+
+def _occluded_sphere(width_px: int, gap_m: float = 0.12):
+    """The sphere scene with a flat occluder (a slab ``gap_m`` in front of the sphere's front) rising from the
+    bottom of the object box over its lower half, ``width_px`` wide and centred, as a detector's box would see a
+    mug behind a brick. Returns depth, the sphere's visible mask and the object box."""
+    depth, hit = sphere_scene(CENTRE, RADIUS)
+    u, v = K_VGA[0, 0] * CENTRE[0] / CENTRE[2] + K_VGA[0, 2], K_VGA[1, 1] * CENTRE[1] / CENTRE[2] + K_VGA[1, 2]
+    r_px = K_VGA[0, 0] * RADIUS / CENTRE[2]                                     # ≈ 33 px
+    box = (int(u - r_px) - 6, int(v - r_px) - 6, int(2 * r_px) + 12, int(2 * r_px) + 12)
+    slab = np.zeros_like(hit)
+    slab[int(v):box[1] + box[3] + 20, int(u - width_px / 2):int(u + width_px / 2)] = True
+    depth[slab] = int(round((CENTRE[2] - RADIUS - gap_m) * 1000))
+    return depth, hit & ~slab, box
+
+
+@pytest.mark.parametrize("width_px", [20, 45, 90])                             # a post, a brick, a wide box
+def test_box_prompt_finds_the_object_behind_an_occluder(width_px):
+    depth, visible, box = _occluded_sphere(width_px)
+    by_box = crop_points(depth, K_VGA, box=box)
+    by_mask = crop_points(depth, K_VGA, mask=visible)
+    dist = np.linalg.norm(by_box.points - CENTRE, axis=1)
+    assert np.all(np.abs(dist - RADIUS) < 0.004)                                # only the sphere's surface
+    assert np.linalg.norm(by_box.points.mean(0) - by_mask.points.mean(0)) < 0.005   # the mask's object, within 5 mm
+    assert by_box.diagnostics["occluded_fraction"] > 0.05                      # what stood in front is reported
+    z = crop_points(depth, K_VGA, box=box, reject_background=False, outlier_std=0).points[:, 2].astype(float)
+    nearest = z[nearest_depth_cluster(z)]                                       # the rule before: nearest big cluster
+    took_occluder = nearest.max() < CENTRE[2] - RADIUS - 0.05
+    assert took_occluder                                                        # and nearness alone took it
+
+
+def test_box_prompt_without_occluder_reports_none():
+    depth, hit = sphere_scene(CENTRE, RADIUS)
+    res = crop_points(depth, K_VGA, box=(240, 150, 170, 170), remove_support_plane=False)
+    assert res.diagnostics["occluded_fraction"] == 0.0 and res.diagnostics["clusters"] >= 1
+
+
+def test_box_object_cluster_prefers_the_centred_cluster_over_a_nearer_one():
+    from equipose.preprocess import box_object_cluster
+    rng = np.random.default_rng(0)
+    rows = np.r_[rng.integers(20, 80, 600), rng.integers(85, 100, 300), rng.integers(0, 100, 400)]
+    cols = np.r_[rng.integers(20, 80, 600), rng.integers(10, 90, 300), np.r_[rng.integers(0, 6, 200),
+                                                                            rng.integers(94, 100, 200)]]
+    z = np.r_[rng.uniform(0.80, 0.85, 600), rng.uniform(0.60, 0.62, 300), rng.uniform(1.5, 1.6, 400)]
+    keep, info = box_object_cluster(z, rows, cols, (0, 0, 100, 100))
+    assert keep[:600].all() and not keep[600:].any()                            # not the occluder, not the wall
+    assert info["clusters"] == 3 and info["occluded_fraction"] == pytest.approx(300 / 900, abs=1e-3)
