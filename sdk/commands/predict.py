@@ -96,14 +96,15 @@ def run(args) -> int:
     boxes = [parse_box(b) for b in args.box] if args.box else None
     masks = [load_mask(m) for m in args.mask] if args.mask else None
     out = pathlib.Path(args.out) if args.out else None
-    if out:
-        if (out / "results.jsonl").exists() and not args.overwrite:
-            raise ConfigError(f"{out / 'results.jsonl'} exists; choose another --out or pass --overwrite")
-        out.mkdir(parents=True, exist_ok=True)
-    jsonl = open(out / "results.jsonl", "w") if out else None
-    n_poses = 0
+    if out and (out / "results.jsonl").exists() and not args.overwrite:
+        raise ConfigError(f"{out / 'results.jsonl'} exists; choose another --out or pass --overwrite")
+    n_poses, written, jsonl, made = 0, [], None, False
     try:
-        with open_source(args.source) as src:
+        with open_source(args.source) as src:                                  # a bad source fails before any output
+            if out:
+                made = not out.exists()
+                out.mkdir(parents=True, exist_ok=True)
+                jsonl = open(out / ".results.jsonl.partial", "w")
             for rec in est.track(src, boxes=boxes, masks=masks, auto=args.auto, smoothing=args.smoothing,
                                  max_frames=args.max_frames, keep_frames=out is not None, up=up):
                 n_poses += len(rec.poses)
@@ -120,16 +121,35 @@ def run(args) -> int:
                 for e in rec.errors:
                     who = "" if e.object_id is None else f" object {e.object_id}"
                     print(f"frame {rec.frame_index}{who}: {e.error}: {e.message}", file=sys.stderr, flush=True)
-                if out and rec.frame is not None:
-                    _write_overlay(out / f"{rec.frame_index:06d}.png", rec)
+                if out and rec.frame is not None and rec.poses:
+                    written.append(out / f"{rec.frame_index:06d}.png")
+                    _write_overlay(written[-1], rec)
     except KeyboardInterrupt:                                                   # live camera: Ctrl-C ends the run
         print("stopped", file=sys.stderr)
     finally:
         if jsonl:
             jsonl.close()
-    if out:
-        print(f"overlays and results.jsonl written to {out}", file=sys.stderr)
+            _finish_output(out, n_poses, written, made)
+    if out and n_poses:
+        print(f"{len(written)} overlay(s) and results.jsonl written to {out}", file=sys.stderr)
+    elif not n_poses:
+        print("no pose was produced: check the model, the region (--box / --mask / --auto) and the depth frames "
+              "(messages above)", file=sys.stderr)
     return 0 if n_poses else 1
+
+
+def _finish_output(out: pathlib.Path, n_poses: int, written: list, made: bool) -> None:
+    """Keep ``results.jsonl`` only when poses were produced; otherwise remove what this run wrote (the partial
+    results, overlays, the folder if it created it), so that a retry is not blocked."""
+    partial = out / ".results.jsonl.partial"
+    if n_poses:
+        partial.replace(out / "results.jsonl")
+        return
+    partial.unlink(missing_ok=True)
+    for p in written:
+        p.unlink(missing_ok=True)
+    if made and not any(out.iterdir()):
+        out.rmdir()
 
 
 def _write_overlay(path, rec):
