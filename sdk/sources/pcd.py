@@ -49,7 +49,7 @@ def read_organized_cloud(path) -> dict:
     try:
         from pypcd4 import PointCloud
     except ImportError:
-        raise SourceError("reading .pcd needs pypcd4: pip install 'equipose[camera]' (or pip install pypcd4)") from None
+        raise SourceError("reading .pcd needs pypcd4 (a dependency of equipose): pip install pypcd4") from None
     path = pathlib.Path(path)
     try:
         with warnings.catch_warnings():                                         # numpy's "no data" warning: checked below
