@@ -13,7 +13,7 @@ from __future__ import annotations
 import os
 import pathlib
 
-__all__ = ["MODELS_DIR", "DEMO_MODEL", "WEIGHTS", "demo_model_path", "list_models", "resolve_model_file", "model_names", "full_name",
+__all__ = ["MODELS_DIR", "DEMO_MODEL", "WEIGHTS", "demo_model_path", "list_models", "resolve_model_file", "model_names", "full_name", "result_symmetry",
            "split_name", "resolve_model", "model_card", "model_cards"]
 
 MODELS_DIR = pathlib.Path(__file__).resolve().parent
@@ -105,8 +105,8 @@ def resolve_model_file(model_path) -> pathlib.Path:
 
 
 def model_card(path) -> dict:
-    """One model's listing (JSON-ready): name, id (``arch.tag``), path, category, mode, preset, precision, size, test
-    metrics, training.
+    """One model's listing (JSON-ready): name, id (``arch.tag``), path, category, mode, preset, precision, size,
+    symmetry (the network's) and result_symmetry (what its results carry), test metrics, training.
 
     Reads the metadata only (the onnx protobuf's metadata map, ``equipose.core.model_file``; no onnxruntime session,
     no inference). ``precision`` comes from the metadata key (older files: from the ``.int8`` name suffix).
@@ -123,8 +123,14 @@ def model_card(path) -> dict:
             "category": str(meta["category"]), "mode": "partial" if meta["partial"] else "complete",
             "preset": meta["preset"], "precision": precision, "size_mb": round(path.stat().st_size / 1e6, 3),
             "num_points": int(meta["num_points"]), "scale_m_per_unit": float(meta["scale"]),
-            "symmetry": str(meta["symmetry"]), "random_init": bool(meta["random_init"]),
-            "metrics": meta.get("metrics") or {}, "training": training}
+            "symmetry": str(meta["symmetry"]), "result_symmetry": result_symmetry(meta),
+            "random_init": bool(meta["random_init"]), "metrics": meta.get("metrics") or {}, "training": training}
+
+
+def result_symmetry(meta: dict) -> str:
+    """The symmetry a model's results carry: its category's, except where a stage settles the free angle (a mug's
+    handle stage makes the pose full 6D: "none (handle)")."""
+    return "none (handle)" if meta.get("handle") is not None else str(meta["symmetry"])
 
 
 def model_cards(paths=None) -> list:
