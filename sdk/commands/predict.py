@@ -1,4 +1,5 @@
-"""``equipose predict``: poses on a depth source (PNG folder, .mcap, .pcd, ``oak``), printed and/or drawn.
+"""``equipose predict``: poses on a depth source (PNG folder, .mcap, .pcd, ``oak``, or one RGB-D pair: ``--depth``
+``--rgb`` ``--intrinsics`` ``--depth-unit``), printed and/or drawn.
 
 Convention: one output line per object per frame (``frame N: object K: <category> R(rotvec°)=[...] t(m)=[...]
 confidence=C``), or with ``--json`` one JSON object per frame (``TrackRecord.to_dict()``). ``--out DIR`` writes
@@ -58,8 +59,15 @@ def load_mask(path) -> "np.ndarray":
 
 def add_arguments(p):
     p.add_argument("--model", "-m", help="equipose .onnx model or a shipped model name (default: the bundled demo model, cup-tabletop)")
-    p.add_argument("--source", "-s", required=True,
-                   help="PNG folder (with intrinsics.json), .mcap recording, .pcd file/folder, or 'oak'")
+    src = p.add_mutually_exclusive_group(required=True)
+    src.add_argument("--source", "-s",
+                     help="PNG folder (with intrinsics.json), .mcap recording, .pcd file/folder, or 'oak'")
+    src.add_argument("--depth", help="one depth PNG (uint16); with --intrinsics, optionally --rgb and --depth-unit")
+    p.add_argument("--rgb", help="with --depth: the registered colour image (for overlays)")
+    p.add_argument("--intrinsics", help="with --depth: fx,fy,cx,cy of the depth image, or a JSON file "
+                                        "({\"K\": 3×3, \"width\", \"height\"} or {\"fx\", \"fy\", \"cx\", \"cy\"})")
+    p.add_argument("--depth-unit", dest="depth_unit", default="mm",
+                   help="with --depth: mm (default), m, or metres per stored unit (e.g. 0.0001)")
     g = p.add_mutually_exclusive_group(required=True)
     g.add_argument("--box", action="append", metavar="x,y,w,h", help="object box in pixels (repeat for several)")
     g.add_argument("--mask", action="append", metavar="FILE", help="object mask image (repeat for several)")
@@ -80,7 +88,6 @@ def add_arguments(p):
 
 def run(args) -> int:
     from equipose.runtime.estimator import PoseEstimator
-    from equipose.sources import open_source
 
     if args.max_frames is not None and args.max_frames < 1:
         raise ConfigError("--max-frames must be ≥ 1")
@@ -100,7 +107,7 @@ def run(args) -> int:
         raise ConfigError(f"{out / 'results.jsonl'} exists; choose another --out or pass --overwrite")
     n_poses, written, jsonl, made = 0, [], None, False
     try:
-        with open_source(args.source) as src:                                  # a bad source fails before any output
+        with _open(args) as src:                                               # a bad source fails before any output
             if out:
                 made = not out.exists()
                 out.mkdir(parents=True, exist_ok=True)
@@ -136,6 +143,21 @@ def run(args) -> int:
         print("no pose was produced: check the model, the region (--box / --mask / --auto) and the depth frames "
               "(messages above)", file=sys.stderr)
     return 0 if n_poses else 1
+
+
+def _open(args):
+    """The frame source of ``--source``, or the single RGB-D pair of ``--depth`` / ``--rgb`` / ``--intrinsics``."""
+    from equipose.sources import open_source
+    from equipose.sources.rgbd import RgbdPairSource, parse_depth_unit, parse_intrinsics
+    if args.depth is None:
+        for flag in ("rgb", "intrinsics"):
+            if getattr(args, flag):
+                raise ConfigError(f"--{flag} goes with --depth (a single RGB-D pair); a --source brings its own")
+        return open_source(args.source)
+    if not args.intrinsics:
+        raise ConfigError("--depth needs --intrinsics fx,fy,cx,cy (pixels of the depth image) or a JSON file")
+    K, size = parse_intrinsics(args.intrinsics)
+    return RgbdPairSource(args.depth, K, rgb=args.rgb, depth_unit=parse_depth_unit(args.depth_unit), image_size=size)
 
 
 def _finish_output(out: pathlib.Path, n_poses: int, written: list, made: bool) -> None:

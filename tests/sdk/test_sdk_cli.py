@@ -30,3 +30,31 @@ def test_predict_mask_and_auto(tmp_path, capsys, tiny_model):
     lines = [ln for ln in capsys.readouterr().out.splitlines() if ln.startswith("frame 0")]
     assert len(lines) == 2 and all("confidence=" in ln for ln in lines)
     assert main(["predict", "-m", str(tiny_model), "-s", str(sample_path()), "--box", "1,2,3"]) == 2
+
+
+def test_predict_one_rgbd_pair_from_files(tmp_path, capsys, tiny_model):
+    depth = cv2.imread(str(sample_path() / "depth" / "000000.png"), cv2.IMREAD_UNCHANGED)
+    info = json.loads((sample_path() / "intrinsics.json").read_text())
+    K = np.asarray(info["K"])
+    cv2.imwrite(str(tmp_path / "d.png"), depth)
+    (tmp_path / "K.json").write_text(json.dumps({"fx": K[0, 0], "fy": K[1, 1], "cx": K[0, 2], "cy": K[1, 2]}))
+    fxfycxcy = f"{K[0, 0]},{K[1, 1]},{K[0, 2]},{K[1, 2]}"
+    box = ["--box", "328,233,169,146", "--threads", "1", "--json"]
+    assert main(["predict", "-m", str(tiny_model), "--depth", str(tmp_path / "d.png"), "--intrinsics", fxfycxcy] + box) == 0
+    a = json.loads(capsys.readouterr().out.strip().splitlines()[-1])["poses"][0]
+    metres = (depth.astype(np.float32) / 1000.0 / 0.0001).astype(np.uint16)   # the same frame at 0.1 mm per unit
+    cv2.imwrite(str(tmp_path / "d01.png"), metres)
+    assert main(["predict", "-m", str(tiny_model), "--depth", str(tmp_path / "d01.png"), "--intrinsics",
+                 str(tmp_path / "K.json"), "--depth-unit", "0.0001"] + box) == 0
+    b = json.loads(capsys.readouterr().out.strip().splitlines()[-1])["poses"][0]
+    np.testing.assert_allclose(a["translation_m"], b["translation_m"], atol=2e-3)
+    assert main(["predict", "-m", str(tiny_model), "--depth", str(tmp_path / "d.png")] + box) == 2   # no intrinsics
+
+
+def test_a_failing_predict_claims_no_output_and_leaves_none(tmp_path, capsys, tiny_model):
+    out = tmp_path / "out"
+    rc = main(["predict", "-m", str(tiny_model), "-s", str(tmp_path / "missing.pcd"), "--auto", "-o", str(out)])
+    assert rc == 2 and not out.exists()
+    assert "written" not in capsys.readouterr().err
+    rc = main(["predict", "-m", str(tiny_model), "-s", str(sample_path()), "--box", "0,0,20,20", "-o", str(out)])
+    assert rc == 1 and not out.exists()                                         # no pose: nothing kept, retry open
