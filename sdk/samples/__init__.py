@@ -8,7 +8,7 @@ from __future__ import annotations
 import json
 import pathlib
 
-__all__ = ["SAMPLES_DIR", "sample_path", "sample_objects"]
+__all__ = ["SAMPLES_DIR", "sample_path", "sample_objects", "sample_frame"]
 
 SAMPLES_DIR = pathlib.Path(__file__).resolve().parent
 
@@ -27,3 +27,10 @@ def sample_objects(name: str = "table_mug") -> list:
     """The ``objects`` list of a sample's ``objects.json`` (``[{"category", "box"}]``), or [] if absent."""
     f = sample_path(name) / "objects.json"
     return json.loads(f.read_text()).get("objects", []) if f.is_file() else []
+
+
+def sample_frame(name: str = "table_mug"):
+    """The first ``Frame`` of a bundled sample (depth uint16 mm [H, W], K [3, 3], rgb BGR or None)."""
+    from equipose.sources.folder import FolderSource
+    with FolderSource(sample_path(name)) as src:
+        return next(iter(src))
