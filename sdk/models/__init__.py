@@ -13,8 +13,8 @@ from __future__ import annotations
 import os
 import pathlib
 
-__all__ = ["MODELS_DIR", "DEMO_MODEL", "WEIGHTS", "demo_model_path", "list_models", "resolve_model_file", "model_names", "full_name", "result_symmetry",
-           "split_name", "resolve_model", "model_card", "model_cards"]
+__all__ = ["MODELS_DIR", "DEMO_MODEL", "WEIGHTS", "demo_model_path", "list_models", "resolve_model_file", "model_names",
+           "full_name", "result_symmetry", "split_name", "resolve_model", "model_card", "model_cards"]
 
 MODELS_DIR = pathlib.Path(__file__).resolve().parent
 DEMO_MODEL = "cup-tabletop.onnx"

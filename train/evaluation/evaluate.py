@@ -75,10 +75,10 @@ def predict_onnx(model, samples: list, batch_size: int = 16, refine="auto", up: 
     is used as it is; ``refine``: its ICP re-scoring of the k best hypotheses). Returns (R, t metres, estimator,
     handle seen [S] bool or None for models without one, the results' symmetry — "none" once a handle stage made the
     pose full 6D). ``up="gt"``: the up prior with each sample's true up axis (what a level IMU or the table plane
-    gives a user; ``equipose.runtime.upright``)."""
+    gives a user; ``equipose.runtime.upright``). Last: [S] bool, the results' ``ambiguous`` flags."""
     from equipose.runtime.estimator import PoseEstimator
     est = model if isinstance(model, PoseEstimator) else PoseEstimator(model, refine=refine)
-    Rs, ts, seen, sym = [], [], [], est.symmetry
+    Rs, ts, seen, flagged, sym = [], [], [], [], est.symmetry
     for i in range(0, len(samples), batch_size):
         chunk = samples[i:i + batch_size]
         ups = None if up is None else [s["rotation"][:, 2] for s in chunk]
@@ -86,8 +86,10 @@ def predict_onnx(model, samples: list, batch_size: int = 16, refine="auto", up: 
             Rs.append(r.rotation)
             ts.append(r.translation)
             seen.append(r.handle_visible)
+            flagged.append(r.ambiguous)
             sym = r.symmetry
-    return np.stack(Rs), np.stack(ts), est, None if est.handle is None else np.array(seen, bool), sym
+    return (np.stack(Rs), np.stack(ts), est, None if est.handle is None else np.array(seen, bool), sym,
+            np.array(flagged, bool))
 
 
 def run_icp(samples: list, templates: list, bidirectional: bool, obs_points: int = 256, iters: int = 20,
@@ -189,7 +191,7 @@ def evaluate(*, category: str, mode: str, checkpoint=None, model_path=None, data
     if checkpoint is not None:
         R, t = predict_checkpoint(model, ckpt, samples)
     else:
-        R, t, est, seen, symmetry = predict_onnx(est, samples, up=up)  # symmetry: the results' (handle: "none")
+        R, t, est, seen, symmetry, flagged = predict_onnx(est, samples, up=up)  # symmetry: the results'
         refine = est.refine
     ours_s = time.perf_counter() - t0
     name = "equipose" + ("+up(gt)" if up else f"+icp{refine}" if refine else "")
@@ -197,12 +199,16 @@ def evaluate(*, category: str, mode: str, checkpoint=None, model_path=None, data
         name += f"+copies{est.copies}"
     row, r_err, t_err = _row(name, R, t, samples, symmetry, unsigned)
     rows, errors = [row], {"equipose": (r_err, t_err)}
+    splits = []
     if checkpoint is None and seen is not None:                    # handle models: the views whose handle was seen
-        for label, m in (("handle seen", seen), ("handle hidden", ~seen)):
-            if m.any():
-                sub = [sm for sm, k in zip(samples, m) if k]
-                rows.append({**_row(f"{row['method']} [{label}]", R[m], t[m], sub, symmetry, unsigned)[0],
-                             "fraction": float(m.mean())})
+        splits += [("handle seen", seen), ("handle hidden", ~seen)]
+    if checkpoint is None:                                         # the views the SDK flagged ambiguous, and the rest
+        splits += [("unflagged", ~flagged), ("flagged", flagged)]
+    for label, m in splits:
+        if m.any():
+            sub = [sm for sm, k in zip(samples, m) if k]
+            rows.append({**_row(f"{row['method']} [{label}]", R[m], t[m], sub, symmetry, unsigned)[0],
+                         "fraction": float(m.mean())})
 
     pick, trows, icp_set, icp_s = [], [], [], 0.0
     if icp_templates > 0:                                          # 0: ours only
