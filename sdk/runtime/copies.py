@@ -14,9 +14,7 @@ Convention:
     (their points correspond one to one), so they are averaged point by point. Copy 0 is the identity (the input as
     it is). Rotations act on column vectors, ``x = R y + t``.
 
-Measured (2026-11-24, 500 test views each, 8 copies, consensus + ICP from it against the mean shape): chair-partial
-median 4.88° → 4.4°, sofa-partial 13.0° → 9.8° (docs/results/models/README.md, v0.12); own samples per copy: sofa
-9.61° → 9.00°, chair 4.23° → 4.27° (v0.13).
+What the copies and their own samples gain: docs/results/models/README.md (v0.12, v0.13).
 """
 from __future__ import annotations
 

@@ -12,9 +12,8 @@ observation, the network's hypotheses (R_i, t_i) map learned frame → observati
 (observation → model), and the winner is composed back:
 ``R = R_i A``, ``t = s (R_i b + t_i) + c``. An equivariant network gives the same composed seeds whatever the CAD
 frame is, so a category model is a seed generator for any object; ICP on the true geometry gives the precision.
-Iterations: 50 by default (a start stops early once its pairs repeat). Measured on 10 poses of the whole YCB drill
-(1 mm noise): with the v0.16 car-partial seeds, 30 left 2 poses 4.8–14° off and 50 ended all within 0.06–0.37°
-(v0.15 seeds: 20 iterations 0.2–2.3°, 30 already 0.1–0.4°).
+Iterations: 50 by default (a start stops early once its pairs repeat; the choice is measured in
+docs/results/models/README.md, instance-level mode).
 """
 from __future__ import annotations
 

@@ -5,12 +5,11 @@ Convention:
     units: the observation is ``PreparedPoints.model_points``, the template the ``canonical_shape`` output in the
     network's learned frame, i.e. the frame its raw hypotheses refer to, before calibration). Residual: mean squared
     nearest-neighbour distance observation → template (plus template → observation when ``bidirectional``, for
-    complete inputs; a partial view covers only part of the template). Neighbours by scipy ``cKDTree``; all starts
-    run together (batched Kabsch via SVD). torch-free.
+    complete inputs; a partial view covers only part of the template). The ICP itself is ``equipose.core.icp``
+    (all starts in one loop). torch-free.
 
-Polish: ``polish`` more ICP iterations on the pose the re-scoring selected (the candidates were ranked after
-``refine_iters``). sofa-partial (10 iterations in the re-scoring), 600 training views: 6.47° / 0.413 within 5° →
-6.15° / 0.425 with 30; chair-partial (30 in the re-scoring) 3.83° → 4.19°, so it is chosen per file.
+Which models re-score how many hypotheses, with how many iterations, is chosen per file and measured in
+docs/results/models/README.md.
 """
 from __future__ import annotations
 

@@ -7,10 +7,7 @@ quantisation. Midpoints to each point's ``k`` nearest neighbours fill the surfac
 points → 582, 862, 1,146, 1,449 at ``k`` = 2, 4, 6, 8) at a modest ICP cost (cKDTree queries grow with the log of
 the template size).
 
-Measured (2026-11-25, chair-partial v0.17 network, 500 test views): median rotation error / 5° accuracy 3.99° / 0.580
-→ 3.90° / 0.604 with k = 4 (re-calibrated), 3.83° / 0.612 with k = 4 and 30 polish iterations (the v0.19 file); the
-per-view gain is about a tenth of a degree, on training views too. Not on every model: sofa-partial 6.85° → 7.24°,
-airplane-partial 2.59° → 2.69° (docs/results/models/README.md, v0.19), so it is chosen per file.
+It helps some models and not others, so it is chosen per file (docs/results/models/README.md, v0.19).
 
 Convention: model units, the frame of the template given (the SDK's learned frame); order: the original points
 first, then the midpoints.

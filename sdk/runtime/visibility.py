@@ -7,10 +7,8 @@ direction for the template points the camera would see at that pose — hidden p
 SIGGRAPH 2007: spherical flip about the viewpoint, then the convex hull) on the posed template — so a pose is also
 charged for visible template parts that the view does not contain.
 
-Measured (2026-11-24, 500 test views, one copy, the k = 5 ICP-refined hypotheses chosen by this residual instead of
-the one-way ICP residual; errors against the teacher's poses): sofa-partial median 13.99° → 9.16°, flips 0.32 → 0.24;
-chair-partial 5.51° → 5.06°, flips 0.07 → 0.04 (exponent 1). With the SDK's copies, whose vote also weighs in
-(``COPY_SUPPORT_WEIGHT``): docs/results/models/README.md (v0.14).
+Its effect on the partial models, alone and with the rotated copies' vote (``COPY_SUPPORT_WEIGHT``):
+docs/results/models/README.md (v0.14).
 
 Convention:
     Model units, the SDK's centred camera frame (``PreparedPoints.model_points``): the camera sits at
