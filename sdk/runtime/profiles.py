@@ -3,7 +3,7 @@
 ``PoseEstimator(M, profile=P)`` (CLI ``--profile``): ``"accurate"`` runs every stage with the settings the model
 file was calibrated for; ``"default"`` the fastest settings measured to keep each model's accuracy within noise of
 ``"accurate"``; ``"fast"`` the network's own pose (no ICP) plus the stages that define what a result means (the
-turn classifier on 128 points, the cylinder axis, the handle). Each profile holds options for all models
+turn classifier, the cylinder axis, the handle). Each profile holds options for all models
 (``"*"``) and per shipped model (its name); measured accuracy and latency per model: docs/benchmarks.md.
 Options explicitly given to ``PoseEstimator`` (``refine=``, ``copies=``, ``stages=`` ...) win over the profile.
 """
@@ -16,11 +16,12 @@ from equipose.core.errors import ConfigError
 __all__ = ["PROFILES", "register_profile", "profile_options", "merge_stage_options"]
 
 FAST = {"copies": False, "rescore": False, "view": False, "polish": False, "rest_facet": False,
-        "frame_priors": False, "flip": False, "turn": {"points": 128}}      # the network's pose + cheap stages
+        "frame_priors": False, "flip": False}                               # the network's pose + cheap stages
 
 PROFILES: dict = {
     "accurate": {"*": {}},
-    "default": {"*": {}},
+    "default": {"*": {},                                                   # per model: measured within noise
+                "car-complete": {"upright": {"points": 128}}},                  # of accurate (docs/benchmarks.md)
     "fast": {"*": FAST},
 }
 
