@@ -20,8 +20,10 @@ FAST = {"copies": False, "rescore": False, "view": False, "polish": False, "rest
 
 PROFILES: dict = {
     "accurate": {"*": {}},
-    "default": {"*": {},                                                   # per model: measured within noise
-                "car-complete": {"upright": {"points": 128}}},                  # of accurate (docs/benchmarks.md)
+    "default": {"*": {},                             # per model: settings measured within noise of accurate
+                "airplane-complete": {"flip": {"templates": 4}},                  # (docs/benchmarks.md, v0.24)
+                "airplane-partial": {"flip": {"template_points": 128}, "turn": {"points": 128}},
+                "car-complete": {"upright": {"points": 128}}},
     "fast": {"*": FAST},
 }
 
