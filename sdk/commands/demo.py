@@ -30,7 +30,7 @@ def run(args) -> int:
     from equipose.preprocess import auto_masks, check_intrinsics
     from equipose.runtime.estimator import PoseEstimator
     from equipose.models import demo_model_path
-    from equipose.runtime.overlay import draw_mask, to_bgr
+    from equipose.runtime.overlay import draw_mask, draw_poses, to_bgr
     from equipose.samples import sample_objects, sample_path
     from equipose.sources import FolderSource
 
@@ -80,9 +80,8 @@ def run(args) -> int:
             rec["axis_vs_table"] = {"angle_deg": a.angle, "deviation_deg": a.deviation, "pose": a.pose}
             print(f"      symmetry axis vs table normal: {a.angle:.1f}° → {a.pose}, {a.deviation:.1f}° from the "
                   "nearer of upright/lying")
-        img = r.plot(img, K)
         records.append(rec)
-    cv2.imwrite(str(out / "overlay.png"), img)
+    cv2.imwrite(str(out / "overlay.png"), draw_poses(img, K, [r for r in results if hasattr(r, "rotation")]))
     cv2.imwrite(str(out / "depth.png"), to_bgr(frame.depth))
     (out / "results.json").write_text(json.dumps({"model": est.info, "objects": records}, indent=1))
     print(f"overlays: {out / 'overlay.png'}, {out / 'depth.png'}; results: {out / 'results.json'}")

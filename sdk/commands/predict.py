@@ -178,11 +178,8 @@ def _write_overlay(path, rec):
     import cv2
 
     from equipose.preprocess import check_intrinsics
-    from equipose.runtime.overlay import to_bgr
+    from equipose.runtime.overlay import draw_poses
 
     f = rec.frame
-    img = to_bgr(f.rgb if f.rgb is not None else f.depth)
     K = check_intrinsics(f.K, np.shape(f.depth)[:2], f.image_size)
-    for pose in rec.poses:
-        img = pose.plot(img, K)
-    cv2.imwrite(str(path), img)
+    cv2.imwrite(str(path), draw_poses(f.rgb if f.rgb is not None else f.depth, K, rec.poses))

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["to_bgr", "depth_colormap", "project", "draw_pose", "draw_mask"]
+__all__ = ["to_bgr", "depth_colormap", "project", "draw_pose", "draw_poses", "pose_label", "place_label", "draw_mask"]
 
 _BOX_EDGES = [(0, 1), (0, 2), (1, 3), (2, 3), (4, 5), (4, 6), (5, 7), (6, 7), (0, 4), (1, 5), (2, 6), (3, 7)]
 
@@ -101,10 +101,70 @@ def draw_pose(image, K, result, *, axis_length: float | None = None, color=(0, 2
             cv2.arrowedLine(img, ipt(uv_axes[0]), ipt(tip[0]), col, thickness + 1, cv2.LINE_AA, tipLength=0.15)
             _outlined_text(img, "handle" if result.handle_visible else "handle?", ipt(tip[0] + np.array([4, 4])), col)
     if label and f_axes[0]:
-        hidden = getattr(result, "handle_visible", None) is False               # (that also sets ambiguous)
-        flag = " handle hidden" if hidden else (" ?flip" if result.ambiguous else "")
-        txt = f"{result.category or 'obj'} c={result.confidence:.2f}" + flag
-        if result.object_id is not None:
-            txt = f"#{result.object_id} " + txt
-        _outlined_text(img, txt, ipt(uv_axes[0] + np.array([6, -6])), (255, 255, 255))
+        _outlined_text(img, pose_label(result), ipt(uv_axes[0] + np.array([6, -6])), (255, 255, 255))
+    return img
+
+
+def pose_label(result) -> str:
+    """One line saying what a result is and how sure: "#3 mug conf 0.42 AMBIGUOUS (handle hidden)"."""
+    hidden = getattr(result, "handle_visible", None) is False                   # (that also sets ambiguous)
+    flag = " AMBIGUOUS (handle hidden)" if hidden else (" AMBIGUOUS (may be turned)" if result.ambiguous else "")
+    txt = f"{result.category or 'object'} conf {result.confidence:.2f}" + flag
+    return txt if result.object_id is None else f"#{result.object_id} {txt}"
+
+
+def place_label(anchor, size, shape, taken: list) -> list:
+    """Where a label of ``size`` (w, h) pixels goes: up and right of ``anchor`` (u, v), inside the image ``shape``
+    (H, W), stepped past every box in ``taken`` ([x0, y0, x1, y1] each) that it would overlap. Returns its box."""
+    w, h = size
+    H, W = shape
+    x0 = int(np.clip(anchor[0] + 10, 0, max(W - w, 0)))
+    y0 = int(np.clip(anchor[1] - h - 8, 0, max(H - h, 0)))
+    for _ in range(4 * len(taken) + 4):
+        box = [x0, y0, x0 + w, y0 + h]
+        hit = next((b for b in taken if box[0] < b[2] and b[0] < box[2] and box[1] < b[3] and b[1] < box[3]), None)
+        if hit is None:
+            return box
+        y0 = hit[3] + 2 if hit[3] + 2 + h <= H else max(0, hit[1] - h - 2)
+    return box
+
+
+_LEGEND = ["axes: x red, y green, z blue; box: the shape's extent", "conf: 0 = a close competitor, 1 = none",
+           "AMBIGUOUS: a turned pose fits as well"]
+
+
+def draw_poses(image, K, results, *, legend: bool = True, thickness: int = 2) -> np.ndarray:
+    """Every ``PoseResult`` of a frame on a copy of ``image``: boxes and axes first, then one label per object placed
+    where it overlaps no other label (tied to its object by a thin line), and a legend in the top-left corner.
+
+    Convention: ``image`` [H, W, 3] BGR uint8 (or depth, colourised); ``K`` [3, 3] of that image."""
+    import cv2
+    img = to_bgr(image)
+    for r in results:
+        img = draw_pose(img, K, r, thickness=thickness, label=False)
+    taken = []                                                                  # [x0, y0, x1, y1] placed boxes
+    H, W = img.shape[:2]
+    font, scale = cv2.FONT_HERSHEY_SIMPLEX, 0.5
+    if legend:
+        y = 6
+        for line in _LEGEND:
+            (w, h), _ = cv2.getTextSize(line, font, 0.45, 1)
+            cv2.rectangle(img, (4, y), (12 + w, y + h + 8), (0, 0, 0), -1)
+            cv2.putText(img, line, (8, y + h + 3), font, 0.45, (255, 255, 255), 1, cv2.LINE_AA)
+            y += h + 8
+        taken.append([0, 0, 16 + max(cv2.getTextSize(t, font, 0.45, 1)[0][0] for t in _LEGEND), y])
+    for r in results:
+        (uv,), (front,) = project(np.asarray(r.translation)[None], K)
+        if not front:
+            continue
+        text = pose_label(r)
+        (w, h), base = cv2.getTextSize(text, font, scale, 1)
+        box = place_label(uv, (w + 6, h + base + 6), (H, W), taken)
+        taken.append(box)
+        colour = (0, 200, 255) if r.ambiguous else (0, 220, 0)
+        anchor = (int(round(uv[0])), int(round(uv[1])))
+        cv2.line(img, anchor, (box[0], (box[1] + box[3]) // 2), colour, 1, cv2.LINE_AA)
+        cv2.rectangle(img, (box[0], box[1]), (box[2], box[3]), (0, 0, 0), -1)
+        cv2.rectangle(img, (box[0], box[1]), (box[2], box[3]), colour, 1)
+        cv2.putText(img, text, (box[0] + 3, box[3] - base - 3), font, scale, (255, 255, 255), 1, cv2.LINE_AA)
     return img

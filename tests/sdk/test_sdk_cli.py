@@ -58,3 +58,14 @@ def test_a_failing_predict_claims_no_output_and_leaves_none(tmp_path, capsys, ti
     assert "written" not in capsys.readouterr().err
     rc = main(["predict", "-m", str(tiny_model), "-s", str(sample_path()), "--box", "0,0,20,20", "-o", str(out)])
     assert rc == 1 and not out.exists()                                         # no pose: nothing kept, retry open
+
+
+def test_overlay_labels_do_not_overlap():
+    from equipose.runtime.overlay import place_label
+    taken = [[0, 0, 200, 60]]                                                   # the legend
+    for _ in range(10):                                                         # ten objects at one spot
+        taken.append(place_label((100.0, 100.0), (180, 20), (480, 640), taken))
+    for i, a in enumerate(taken):
+        assert 0 <= a[0] and a[2] <= 640 and 0 <= a[1] and a[3] <= 480
+        for b in taken[i + 1:]:
+            assert not (a[0] < b[2] and b[0] < a[2] and a[1] < b[3] and b[1] < a[3])
