@@ -1,4 +1,4 @@
-"""Torch-side benchmark backends (torch eager, ICP-60 baseline), registered with ``equipose.runtime.backends``.
+"""Torch-side benchmark backends (torch eager, ICP-60 baseline), registered with ``equipose.bench.backends``.
 
 Convention: both keep the SDK's crop and FPS ordering and replace only ``est.runner`` (model points [B, N, 3] model
 units → the four output arrays). torch: eager ``EquiPoseNet`` with ``--checkpoint`` weights, else the export seed of
