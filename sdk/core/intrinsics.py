@@ -53,8 +53,10 @@ def check_intrinsics(K, depth_shape, image_size=None) -> np.ndarray:
                     f"K belongs to a {w0}×{h0} image but the depth frame is {W}×{H} (different aspect ratio); a crop "
                     "cannot be undone from the size alone — pass the intrinsics of the depth frame itself")
             # pixel centres at integer coordinates: x' = (x + 0.5) · s − 0.5
-            K[0, 0] *= sx; K[0, 1] *= sx; K[0, 2] = (K[0, 2] + 0.5) * sx - 0.5
-            K[1, 1] *= sy; K[1, 2] = (K[1, 2] + 0.5) * sy - 0.5
+            K[0, :2] *= sx                                                      # fx, skew
+            K[0, 2] = (K[0, 2] + 0.5) * sx - 0.5
+            K[1, 1] *= sy
+            K[1, 2] = (K[1, 2] + 0.5) * sy - 0.5
     fx, fy = K[0, 0], K[1, 1]
     if not (FOCAL_RANGE[0] * max(W, H) <= min(fx, fy) and max(fx, fy) <= FOCAL_RANGE[1] * max(W, H)) \
             or not 0.2 <= fx / fy <= 5.0:

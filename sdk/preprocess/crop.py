@@ -279,7 +279,8 @@ def crop_points(depth, K, *, box=None, mask=None, depth_unit="mm", image_size=No
         s = int(math.ceil(math.sqrt(n_valid / max_points)))
         if np.count_nonzero(valid[::s, ::s]) < min_points:                      # pathological sparse layouts
             rows, cols = np.nonzero(valid)
-            keep = np.zeros(len(rows), bool); keep[:: int(math.ceil(len(rows) / max_points))] = True
+            keep = np.zeros(len(rows), bool)
+            keep[:: int(math.ceil(len(rows) / max_points))] = True
             rows, cols = rows[keep], cols[keep]
             s = 0                                                               # not a grid any more
         else:
