@@ -18,7 +18,7 @@ import numpy as np
 from equipose.core.errors import InvalidPointsError
 from equipose.core.icp import icp_multi, kabsch
 
-__all__ = ["kabsch", "icp_multi", "refine_hypotheses"]
+__all__ = ["kabsch", "icp_multi", "refine_hypotheses", "rank_refined"]
 
 
 def refine_hypotheses(points: np.ndarray, template: np.ndarray, rotations: np.ndarray, translations: np.ndarray,
@@ -42,9 +42,16 @@ def refine_hypotheses(points: np.ndarray, template: np.ndarray, rotations: np.nd
     Rk, tk, res = icp_multi(points, template, R[top], t[top], iters=iters, bidirectional=bidirectional)
     R_out, t_out = R.copy(), t.copy()
     R_out[top], t_out[top] = Rk, tk
-    rest = np.setdiff1d(np.arange(len(R)), top)
-    s_out = np.empty_like(s)
-    s_out[top] = res
+    return R_out, t_out, rank_refined(s, top, res)
+
+
+def rank_refined(scores: np.ndarray, top: np.ndarray, residuals: np.ndarray) -> np.ndarray:
+    """New scores [A]: the refined hypotheses ``top`` [k] score their ICP ``residuals`` [k]; the others keep their
+    order but rank behind every refined one (shifted above the largest residual)."""
+    s = np.asarray(scores, np.float64)
+    out = np.empty_like(s)
+    out[top] = residuals
+    rest = np.setdiff1d(np.arange(len(s)), top)
     if len(rest):
-        s_out[rest] = res.max() + 1e-9 + (s[rest] - s[rest].min())
-    return R_out, t_out, s_out
+        out[rest] = residuals.max() + 1e-9 + (s[rest] - s[rest].min())
+    return out

@@ -15,6 +15,7 @@ import numpy as np
 from equipose.core.icp import icp_multi
 from equipose.core.metadata import MAX_DENSIFY
 from equipose.core.errors import ConfigError
+from equipose.runtime.refine import rank_refined
 from equipose.runtime.stage import ObjectState, Stage, register_stage
 from equipose.runtime.template import densify_template
 
@@ -82,10 +83,5 @@ class RescoreStage(Stage):
         if state.consensus is not None:
             state.consensus = (R[-1], t[-1], state.consensus[2], float(res[-1]))
             R, t, res = R[:-1], t[:-1], res[:-1]
-        rest = np.setdiff1d(np.arange(len(s)), top)
-        out = np.empty_like(s)
-        out[top] = res
-        if len(rest):                                                           # the others rank behind, in order
-            out[rest] = res.max() + 1e-9 + (s[rest] - s[rest].min())
-        state.R[top], state.t[top], state.scores = R, t, out
+        state.R[top], state.t[top], state.scores = R, t, rank_refined(s, top, res)
         state.rescored = True
