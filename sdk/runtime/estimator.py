@@ -120,15 +120,16 @@ class PoseEstimator:
             self.instance = build_instance_model(self, model_points, k=instance_k, iters=instance_iters)
             self._build_pipeline()
 
-    def _build_pipeline(self) -> None:
-        """(Re)build the stage pipeline from the metadata, the options and the calibration attributes."""
+    def _build_pipeline(self, calibration=None) -> None:
+        """(Re)build the stage pipeline from the spec and the options, and the attributes that report it.
+        ``calibration``: (δR, δt) set on the estimator, or None for the file's (the re-scoring's when it runs)."""
         mode = "category" if self.instance is None else "instance"
-        probe = Pipeline.build(self.spec, self.stage_options, mode, {"instance": self.instance})
-        rescore, rcal = probe.get("rescore"), self.spec.refine_calibration
-        self.calibration_rotation, self.calibration_translation = \
-            (rcal["rotation"], rcal["translation"]) if (rescore and rcal) else self.spec.calibration
-        self.pipeline = probe
-        self._pipeline_inputs = self._stage_inputs()
+        self.pipeline = Pipeline.build(self.spec, self.stage_options, mode,
+                                       {"instance": self.instance, "calibration": calibration})
+        rescore, rcal = self.pipeline.get("rescore"), self.spec.refine_calibration
+        if calibration is None:
+            calibration = (rcal["rotation"], rcal["translation"]) if (rescore and rcal) else self.spec.calibration
+        self.calibration_rotation, self.calibration_translation = calibration
         self.refine = rescore.k if rescore else 0
         self.refine_iters = rescore.iters if rescore else int((rcal or {}).get("iters", 10))
         self.densify = rescore.densify if rescore else 0
@@ -138,22 +139,18 @@ class PoseEstimator:
         copies = self.pipeline.get("copies")
         self.copies = 1 if copies is None else copies.count
         self.copy_rotations = np.eye(3)[None] if copies is None else copies.rotations   # [K, 3, 3]
+        self._pipeline_inputs = self._stage_inputs()
 
     def _stage_inputs(self) -> tuple:
         """What the pipeline was built from that callers may change on the estimator afterwards: the optional
         metadata keys the stages read, the symmetry and the calibration (a change rebuilds it on the next call)."""
         keys = tuple(id(self.metadata.get(k)) for k in stage_metadata_keys())
-        cal = (id(getattr(self, "calibration_rotation", None)), id(getattr(self, "calibration_translation", None)))
-        return keys + cal + (self.symmetry,)
+        return keys + (id(self.calibration_rotation), id(self.calibration_translation), self.symmetry)
 
     def _current_pipeline(self) -> Pipeline:
         if self._stage_inputs() != self._pipeline_inputs:                      # attributes changed since the build
-            cal = (self.calibration_rotation, self.calibration_translation)
             self.spec = ModelSpec.from_metadata({**self.metadata, "symmetry": self.symmetry}, self.path.name)
-            self.pipeline = Pipeline.build(self.spec, self.stage_options,
-                                           "category" if self.instance is None else "instance",
-                                           {"instance": self.instance, "calibration": cal})
-            self._pipeline_inputs = self._stage_inputs()
+            self._build_pipeline((self.calibration_rotation, self.calibration_translation))
         return self.pipeline
 
     @property

@@ -108,3 +108,14 @@ def test_pipeline_needs_a_selection(tiny_model):
     prep = prepare_points(x[0] * est.scale + [0, 0, 0.7], est.num_points, est.scale)
     with pytest.raises(errors.ConfigError, match="selected no pose"):
         pipe.run(est.run_model(prep.model_points[None]), 0, prep)
+
+
+def test_changed_calibration_rebuilds_the_pipeline_and_keeps_its_settings(tiny_model):
+    est = PoseEstimator(tiny_model, threads=1, refine=3, refine_iters=4)
+    pts = np.random.default_rng(1).normal(size=(400, 3)) * 0.04 + [0.0, 0.0, 0.7]
+    R0 = est.predict_points(pts).rotation
+    turn = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])      # δR: 90° about z
+    est.calibration_rotation = turn
+    R1 = est.predict_points(pts).rotation                                       # R_cat = R · δRᵀ
+    np.testing.assert_allclose(R1, R0 @ turn.T, atol=1e-6)
+    assert est.calibration_rotation is turn and (est.refine, est.refine_iters) == (3, 4)
