@@ -99,7 +99,7 @@ class ObjectState:
         canonical: [M, 3] predicted canonical shape, learned frame (the mean over rotated copies).
         template: the ICP template in the learned frame (``canonical`` unless a stage densifies it).
         copy_poses: rotated copies only: each copy's best (R [K, 3, 3], t [K, 3]) in the input's frame.
-        consensus: rotated copies only: (R [3, 3], t [3], support [K] bool).
+        consensus: rotated copies only: (R [3, 3], t [3], support [K] bool, ICP residual or None before re-scoring).
         rescored: the ICP re-scoring ran (scores are residuals); view_scored: the view-aware re-scoring ran.
         calibrated: R, t are in the category frame; canonical_category [M, 3] the shape there; learned: the
             hypotheses (R, t) before calibration; calibration: (δR [3, 3], δt [3]) applied.
