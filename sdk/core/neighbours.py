@@ -24,7 +24,7 @@ __all__ = ["NearestNeighbours", "choose_backend", "BACKENDS", "GEMM_MAX_POINTS",
 
 BACKENDS = ("gemm", "small_gicp", "kdtree")
 GEMM_MAX_POINTS = 512           # reference sets up to this size use the dense product (larger: a k-d tree)
-GEMM_CHUNK_ENTRIES = 1 << 16    # [Q, M] float32 blocks of 256 kB stay in cache (and off BLAS threads)
+GEMM_CHUNK_ENTRIES = 1 << 20    # [Q, M] float32 blocks of at most 4 MB per product + argmin
 
 
 def _small_gicp():
