@@ -3,6 +3,10 @@ through ``equipose.PoseEstimator``) and ICP-60 + template from the same command;
 
 Convention: rotation errors in degrees (symmetric categories: up-axis angle); translation errors divided by the
 instance's bbox diagonal; 5°0.05 = rotation ≤ 5° and translation ≤ 0.05; flip = rotation error > 150°.
+
+With ``--dataset ycbv:DIR | bop:DIR | graspnet:DIR`` it evaluates exported models on annotated real RGB-D frames
+instead (``equipose.eval.datasets``: rotation / axis errors in degrees, centre errors in mm, 5°5cm and 10°5cm, per
+object and prompt); then ``--category`` / ``--mode`` do not apply and ``--model`` may list one model per category.
 """
 from __future__ import annotations
 
@@ -13,8 +17,18 @@ def add_arguments(p) -> None:
     src = p.add_mutually_exclusive_group(required=True)
     src.add_argument("--checkpoint", help="a trained (and calibrated) checkpoint")
     src.add_argument("--model", help="an exported .onnx model (evaluated through the SDK)")
-    p.add_argument("--category", required=True)
-    p.add_argument("--mode", choices=["complete", "partial"], required=True)
+    p.add_argument("--category", help="the test set's category (required without --dataset)")
+    p.add_argument("--mode", choices=["complete", "partial"], help="complete | partial (required without --dataset)")
+    p.add_argument("--dataset", help="evaluate on annotated real frames: ycbv:DIR, bop:DIR or graspnet:DIR (with "
+                                     "--model NAME[,NAME...]: one exported model per category)")
+    p.add_argument("--object", action="append", dest="objects",
+                   help="with --dataset: only this object (mapping name or id; repeatable)")
+    p.add_argument("--prompt", default="both", choices=["box", "mask", "both", "auto", "all"],
+                   help="with --dataset: the region given to the SDK: the visible mask, its bounding box, both "
+                        "(default), the SDK's own tabletop segmentation (auto), or all three")
+    p.add_argument("--overlays", help="with --dataset: a folder for one JPEG per frame and prompt (≤ 640 px wide)")
+    p.add_argument("--mapping", help="with --dataset: an object-mapping TOML (default: the dataset's shipped one, "
+                                     "equipose/eval/datasets/{ycbv,graspnet}.toml)")
     p.add_argument("--json", help="write the table as JSON here")
     p.add_argument("--plot", help="write a PNG of error-percentile curves here")
     p.add_argument("--limit", type=int, help="first K test instances only")
@@ -39,9 +53,10 @@ def add_arguments(p) -> None:
                    help="with --model: the SDK profile (fast, default, accurate; PoseEstimator(profile=...))")
     p.add_argument("--stages", default=None,
                    help='with --model: stage options as JSON, e.g. \'{"rescore": {"iters": 10}, "turn": false}\'')
-    p.add_argument("--up", choices=["gt"], default=None,
+    p.add_argument("--up", choices=["gt", "plane", "none"], default=None,
                    help="with --model: give the SDK each view's true up axis as the up prior (the setting of a user "
-                        "with a level IMU or a table plane; PoseEstimator.predict(..., up=...)); ICP-60 does not use it")
+                        "with a level IMU or a table plane; PoseEstimator.predict(..., up=...)); ICP-60 does not use it. "
+                        "With --dataset also 'plane' (the frame's support plane) or 'none' (default)")
     p.add_argument("--store-metrics", dest="store_metrics", action="store_true",
                    help="with --model: write this table into the model file's 'metrics' metadata (what "
                         "'equipose models' lists)")
@@ -61,7 +76,36 @@ def _stages(text):
     return value
 
 
+def _run_dataset(args) -> int:
+    """``--dataset``: the real-data evaluation of ``equipose.eval.datasets`` (torch-free)."""
+    from equipose.eval.datasets.run import evaluate_dataset, format_table, write_json
+    if args.checkpoint:
+        raise ConfigError("--dataset evaluates exported models: give --model NAME[,NAME...] (an .onnx or shipped "
+                          "name per category), not --checkpoint")
+    if args.category or args.mode:
+        raise ConfigError("--category / --mode select the synthetic test set; with --dataset the mapping picks each "
+                          "object's category from --model: drop them")
+    if args.store_metrics or args.plot or args.stages or args.exclude or args.exclude_suspects:
+        raise ConfigError("--store-metrics / --plot / --stages / --exclude apply to the synthetic test set, not to "
+                          "--dataset")
+    res = evaluate_dataset(args.dataset, args.model, objects=args.objects, prompt=args.prompt, limit=args.limit,
+                           profile=args.profile, up=args.up, mapping=args.mapping, overlays=args.overlays)
+    print(format_table(res))
+    if args.json:
+        write_json(res, args.json)
+    return 0
+
+
 def run(args) -> int:
+    if getattr(args, "dataset", None):
+        return _run_dataset(args)
+    if not args.category or not args.mode:
+        raise ConfigError("equipose eval needs --category and --mode (the synthetic test set), or --dataset "
+                          "KIND:DIR for annotated real frames")
+    if args.up in ("plane", "none"):
+        raise ConfigError(f"--up {args.up} is for --dataset; the synthetic test set takes --up gt or nothing")
+    if any(getattr(args, k, None) for k in ("objects", "overlays", "mapping")) or args.prompt != "both":
+        raise ConfigError("--object / --prompt / --overlays / --mapping apply with --dataset only")
     from equipose.train.evaluation.evaluate import (evaluate, format_table, metrics_for_metadata, plot_percentiles,
                                                     write_json)
     import torch
