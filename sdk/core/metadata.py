@@ -38,7 +38,9 @@ the cloud's mirror plane and footprint rectangle (``equipose.runtime.frame_prior
 {"axes": ["x", "y", "z"], "margin": float, "ambiguous_margin": float, "point": [layer, ...], "head": [layer, ...],
 "source": {...}} with each layer {"shape": [out, in], "weight": base64 float32 little-endian (out·in),
 "bias": base64 float32 (out)}: a PointNet scorer of the view's canonical points that settles half turns about those
-axes (``equipose.runtime.turn_classifier``).
+axes (``equipose.runtime.turn_classifier``); ``confidence_calibration`` JSON {"features": [name, ...] (some of
+``CONFIDENCE_FEATURES``), "weights": [float, ...], "bias": float, "definition": str, ...}: the logistic model that turns
+a result's evidence into the chance that its pose is right (``equipose.runtime.stages.confidence``).
 """
 from __future__ import annotations
 
@@ -51,11 +53,13 @@ import numpy as np
 from equipose.core import icosahedral
 from equipose.core.errors import MetadataError, ModelVersionError
 
-__all__ = ["FORMAT_VERSION", "REQUIRED_KEYS", "FRAME_PRIOR_STEPS", "MAX_COPIES", "MAX_POLISH", "MAX_DENSIFY",
+__all__ = ["FORMAT_VERSION", "REQUIRED_KEYS", "FRAME_PRIOR_STEPS", "CONFIDENCE_FEATURES", "MAX_COPIES", "MAX_POLISH", "MAX_DENSIFY",
            "encode_metadata", "decode_metadata", "encode_turn_classifier"]
 
 FORMAT_VERSION = 1
 FRAME_PRIOR_STEPS = ("rest", "mirror", "footprint")       # equipose.runtime.frame_priors
+CONFIDENCE_FEATURES = ("margin", "residual", "outliers", "coverage", "occlusion", "log_points", "ambiguous",
+                       "up_given", "handle_seen", "handle_share")   # equipose.runtime.stages.confidence
 MAX_COPIES = 64                                            # refine_calibration copies; equipose.runtime.copies
 MAX_POLISH = 200                                           # refine_calibration polish; equipose.runtime.refine
 MAX_DENSIFY = 16                                           # refine_calibration densify; equipose.runtime.template
@@ -183,6 +187,23 @@ def _rest_facet(text, source: str):
     return {"tolerance_deg": tol}
 
 
+def _confidence_calibration(text, source: str):
+    """``confidence_calibration`` metadata → {"features": tuple, "weights" [F], "bias": float, ...} or None."""
+    if not text:
+        return None
+    try:
+        d = json.loads(text)
+        feats, w, b = tuple(str(f) for f in d["features"]), np.asarray(d["weights"], np.float64), float(d["bias"])
+    except (ValueError, KeyError, TypeError) as e:
+        raise MetadataError(f"{source}: malformed confidence_calibration metadata ({e}); re-run "
+                            "'python -m equipose.train.evaluation.confidence --model ... --write'") from None
+    unknown = [f for f in feats if f not in CONFIDENCE_FEATURES]
+    if unknown or w.shape != (len(feats),) or not (np.all(np.isfinite(w)) and math.isfinite(b)):
+        raise MetadataError(f"{source}: confidence_calibration needs finite weights, one per feature of "
+                            f"{', '.join(CONFIDENCE_FEATURES)}; got features {list(feats)} and weights {w.tolist()}")
+    return {**d, "features": feats, "weights": w, "bias": b}
+
+
 def _frame_priors(text, source: str):
     """``frame_priors`` metadata → {"steps": [str], "mirror_axis": str | None, "max_deg": float} or None."""
     if not text:
@@ -282,6 +303,7 @@ def decode_metadata(props: dict, source: str = "model") -> dict:
     out["rest_facet"] = _rest_facet(props.get("rest_facet"), source)
     out["turn_classifier"] = _turn_classifier(props.get("turn_classifier"), source)
     out["frame_priors"] = _frame_priors(props.get("frame_priors"), source)
+    out["confidence_calibration"] = _confidence_calibration(props.get("confidence_calibration"), source)
     _check_symmetry(out["symmetry"])
     if not (math.isfinite(out["scale"]) and out["scale"] > 0):
         raise MetadataError(f"{source}: scale must be positive, got {out['scale']}")

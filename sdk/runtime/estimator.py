@@ -193,12 +193,12 @@ class PoseEstimator:
         return dict(zip(OUTPUT_NAMES, outs))
 
     def _finish(self, outputs: dict, b: int, prep: "_crop.PreparedPoints", *, prefer: int | None = None,
-                prefer_margin: float = 0.0, up=None) -> tuple:
+                prefer_margin: float = 0.0, up=None, crop: dict | None = None) -> tuple:
         """Outputs of batch item ``b`` → (PoseResult without timings, selection ms)."""
         if self.instance is not None and up is not None:
             raise ConfigError("the up prior does not apply in instance-level mode (model_points): leave up=None")
         return self._current_pipeline().run(outputs, b, prep, prefer=prefer, prefer_margin=prefer_margin, up=up,
-                                            category=self.category, top_k=self.top_k)
+                                            category=self.category, top_k=self.top_k, crop=crop)
 
     def predict_points(self, points, *, up=None) -> PoseResult:
         """Pose of one object from its points.
@@ -234,7 +234,8 @@ class PoseEstimator:
         for b, prep in enumerate(preps):
             pref = None if prefer is None else prefer[b]
             res, sel_ms = self._finish(outputs, b, prep, prefer=pref, prefer_margin=prefer_margin,
-                                       up=None if ups is None else ups[b])
+                                       up=None if ups is None else ups[b],
+                                       crop=None if crops[b] is None else crops[b].diagnostics)
             res.num_points, res.points_centre = int(counts[b]), prep.centre_m.copy()
             res.crop = {} if crops[b] is None else dict(crops[b].diagnostics)
             res.timings = {"crop": crop_ms[b], "fps": fps_ms[b], "inference": inf_ms, "selection": sel_ms,

@@ -112,6 +112,7 @@ class ObjectState:
         prefer, prefer_margin: tracking's preferred hypothesis (index or rotation) and its margin; top_k: hypotheses
             listed in the result.
         extras: what stages add to the result (result field name → value).
+        crop: the crop's diagnostics (``CropResult.diagnostics``; empty for point input).
     """
     prep: object
     R: np.ndarray
@@ -140,6 +141,7 @@ class ObjectState:
     prefer_margin: float = 0.0
     top_k: int = 5
     extras: dict = field(default_factory=dict)
+    crop: dict = field(default_factory=dict)
 
     @property
     def points(self) -> np.ndarray:

@@ -82,7 +82,7 @@ def test_stage_options_are_validated(tiny_model):
 
 def test_pipeline_follows_options_and_profiles(tiny_model):
     base = PoseEstimator(tiny_model, threads=1, profile="accurate")
-    assert [s["stage"] for s in base.pipeline_info] == ["calibrate", "select", "upright"]   # no refine calibration
+    assert [s["stage"] for s in base.pipeline_info] == ["calibrate", "select", "upright", "confidence"]   # no refine calibration
     rescored = PoseEstimator(tiny_model, threads=1, refine=3, refine_iters=4, stages={"rescore": {"points": 64}})
     assert rescored.pipeline.get("rescore").describe() == {"k": 3, "iters": 4, "densify": 0, "points": 64}
     assert rescored.refine == 3 and rescored.refine_iters == 4

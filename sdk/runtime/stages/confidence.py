@@ -1,0 +1,87 @@
+"""Stage ``confidence`` (metadata ``confidence_calibration``): the result's evidence, and from it the chance that the
+pose is right.
+
+Evidence (result extra ``evidence``, every model): how well the chosen pose explains the observed points and how much
+of the object was seen —
+
+- ``margin``: the selection's relative score margin to the best hypothesis > 30° away, as the stages left it;
+- ``residual``: mean distance from each model input point to the posed canonical shape, in shape RMS radii;
+- ``outliers``: share of input points farther than ``FAR`` RMS radii from the posed shape (occluders, background);
+- ``coverage``: share of the posed shape's points with an input point within ``FAR`` RMS radii (how much was seen);
+- ``occlusion``: the share of the box's object cluster that something in front hid (box prompts; else 0);
+- ``log_points``: log10 of the crop's point count; ``ambiguous``, ``up_given``: the result's flags (0/1);
+- ``handle_seen``, ``handle_share``: mugs: the handle stage's verdict and its handle-zone points / input points.
+
+With ``confidence_calibration`` in the model file, ``confidence`` = σ(bias + Σ weight·feature): the estimated chance
+that the rotation is within 10° of the truth (modulo the symmetry) and the centre within 2 cm, fitted on rendered
+views with occluders and sensor noise (``equipose.train.evaluation.confidence``); the selection margin stays in the
+evidence. Without it, ``confidence`` stays the margin.
+
+Convention: model units, category frame posed into the centred camera frame of the model input.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from equipose.core.neighbours import NearestNeighbours
+from equipose.runtime.stage import ObjectState, Stage, register_stage
+
+__all__ = ["ConfidenceStage", "FAR", "evidence"]
+
+FAR = 0.25          # RMS radii: a point farther than this from the other set is unexplained / unseen
+
+
+def evidence(state: ObjectState) -> dict:
+    """The evidence of a finished state (see the module docstring): {feature name: float}."""
+    shape = state.canonical_category if state.canonical_category is not None else state.canonical     # [M, 3]
+    shape = np.asarray(shape, np.float64)
+    rms = float(np.sqrt(np.mean(np.sum((shape - shape.mean(0)) ** 2, 1)))) or 1.0
+    posed = shape @ state.rotation.T + state.translation                        # [M, 3] input frame
+    x = np.asarray(state.points, np.float64)                                    # [N, 3]
+    d_obs, _ = NearestNeighbours(posed).query(x)                                # [N] input → shape
+    d_shape, _ = NearestNeighbours(x).query(posed)                              # [M] shape → input
+    crop = state.crop or {}
+    n_crop = crop.get("inliers", len(x))
+    handle = state.extras.get("handle_visible")
+    return {
+        "margin": float(state.confidence),
+        "residual": float(d_obs.mean() / rms),
+        "outliers": float(np.mean(d_obs > FAR * rms)),
+        "coverage": float(np.mean(d_shape < FAR * rms)),
+        "occlusion": float(crop.get("occluded_fraction", 0.0) or 0.0),
+        "log_points": math.log10(max(int(n_crop), 1)),
+        "ambiguous": float(bool(state.ambiguous)),
+        "up_given": float(state.up is not None),
+        "handle_seen": float(bool(handle)) if handle is not None else 0.0,
+        "handle_share": float(state.extras.get("handle_points", 0)) / max(len(x), 1),
+    }
+
+
+@register_stage
+class ConfidenceStage(Stage):
+    name = "confidence"
+    metadata_key = "confidence_calibration"
+    modes = ("category", "instance")
+    after = "instance"
+
+    def __init__(self, calibration: dict | None):
+        self.calibration = calibration
+
+    @classmethod
+    def build(cls, spec, options, context):
+        return cls(spec.get(cls.metadata_key))
+
+    def describe(self) -> dict:
+        c = self.calibration
+        return {"calibrated": c is not None} | ({} if c is None else {"features": list(c["features"])})
+
+    def run(self, state: ObjectState) -> None:
+        ev = evidence(state)
+        state.extras["evidence"] = {k: round(v, 6) for k, v in ev.items()}
+        c = self.calibration
+        if c is None:
+            return
+        z = c["bias"] + float(np.dot(c["weights"], [ev[f] for f in c["features"]]))
+        state.confidence = float(1.0 / (1.0 + math.exp(-min(max(z, -60.0), 60.0))))

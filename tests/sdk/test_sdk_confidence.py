@@ -1,0 +1,93 @@
+"""The confidence stage: evidence of a pose, the calibrated logistic model in the metadata, and its fitting tools."""
+import json
+import math
+import shutil
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from equipose import PoseEstimator, errors
+from equipose.core.metadata import CONFIDENCE_FEATURES, decode_metadata
+from equipose.core.model_file import read_metadata_props
+from equipose.runtime.stages.confidence import FAR, ConfidenceStage, evidence
+from equipose.testing import posed_state
+
+
+def _cloud(n=256, seed=0):
+    rng = np.random.default_rng(seed)
+    p = rng.normal(size=(n, 3)) * [0.3, 0.2, 0.4]
+    return p
+
+
+def test_evidence_of_a_perfect_fit_and_of_outliers():
+    R, t = Rotation.from_euler("xyz", [20, -35, 60], degrees=True).as_matrix(), np.array([0.1, -0.2, 0.05])
+    canon = _cloud()
+    x = canon @ R.T + t
+    ev = evidence(posed_state(x, R, t, canonical=canon))
+    assert set(ev) == set(CONFIDENCE_FEATURES)
+    assert ev["residual"] < 1e-6 and ev["outliers"] == 0.0 and ev["coverage"] == 1.0
+    assert ev["ambiguous"] == 0.0 and ev["up_given"] == 0.0 and ev["occlusion"] == 0.0
+    far = x.copy()
+    far[::2] += [3.0, 0.0, 0.0]                                                 # half the points: an occluder
+    ev2 = evidence(posed_state(far, R, t, canonical=canon))
+    assert ev2["outliers"] == pytest.approx(0.5) and ev2["residual"] > 1.0 and ev2["coverage"] < 0.9
+    up = evidence(posed_state(x, R, t, canonical=canon, up=R[:, 2]))
+    assert up["up_given"] == 1.0
+    assert 0 < FAR < 1
+
+
+def test_stage_applies_the_logistic_model_and_keeps_the_margin():
+    R, t = np.eye(3), np.zeros(3)
+    canon = _cloud(seed=1)
+    cal = {"features": ("margin", "residual"), "weights": np.array([2.0, -10.0]), "bias": -0.5}
+    state = posed_state(canon, R, t, canonical=canon)
+    state.confidence = 0.4
+    ConfidenceStage(cal).run(state)
+    ev = state.extras["evidence"]
+    assert ev["margin"] == pytest.approx(0.4)
+    assert state.confidence == pytest.approx(1 / (1 + math.exp(-(-0.5 + 2.0 * 0.4 - 10.0 * ev["residual"]))))
+    plain = posed_state(canon, R, t, canonical=canon)
+    plain.confidence = 0.4
+    ConfidenceStage(None).run(plain)                                            # uncalibrated: the margin stays
+    assert plain.confidence == 0.4 and "evidence" in plain.extras
+
+
+def test_calibration_metadata_round_trip_and_errors(tiny_model, tmp_path):
+    from equipose.export.onnx_export import update_metadata
+    path = tmp_path / "m.onnx"
+    shutil.copy(tiny_model, path)
+    cal = {"features": ["margin", "coverage"], "weights": [1.5, 2.0], "bias": -3.0, "definition": "test"}
+    update_metadata(path, confidence_calibration=cal)
+    meta = decode_metadata(read_metadata_props(path))
+    assert meta["confidence_calibration"]["features"] == ("margin", "coverage")
+    est = PoseEstimator(path, threads=1)
+    assert est.pipeline.get("confidence").describe() == {"calibrated": True, "features": ["margin", "coverage"]}
+    x = _cloud(300, seed=2) * 0.2 + [0, 0, 0.8]
+    r = est.predict_points(x)
+    ev = r.to_dict()["evidence"]
+    z = -3.0 + 1.5 * ev["margin"] + 2.0 * ev["coverage"]
+    assert r.confidence == pytest.approx(1 / (1 + math.exp(-z)), abs=1e-4)
+    props = read_metadata_props(path)
+    for bad in ({"features": ["nope"], "weights": [1.0], "bias": 0.0},
+                {"features": ["margin"], "weights": [1.0, 2.0], "bias": 0.0},
+                {"features": ["margin"], "weights": [float("nan")], "bias": 0.0}):
+        with pytest.raises(errors.MetadataError, match="confidence_calibration"):
+            decode_metadata({**props, "confidence_calibration": json.dumps(bad)})
+
+
+def test_logistic_fit_auroc_and_reliability():
+    from equipose.train.evaluation.confidence import auroc, fit_logistic, predict_logistic, reliability
+    rng = np.random.default_rng(0)
+    X = rng.normal(size=(2000, 2))
+    y = (rng.random(2000) < 1 / (1 + np.exp(-(3 * X[:, 0] - 0.5)))).astype(float)   # the second feature is noise
+    w, b = fit_logistic(X, y)
+    assert w[0] == pytest.approx(3.0, rel=0.2) and abs(w[1]) < 0.3 and b == pytest.approx(-0.5, abs=0.25)
+    p = predict_logistic(X, w, b)
+    table, ece = reliability(p, y)
+    assert ece < 0.05 and sum(t["n"] for t in table) == 2000
+    assert auroc(np.array([0.1, 0.2, 0.8, 0.9]), np.array([0, 0, 1, 1])) == 1.0
+    assert auroc(np.array([0.9, 0.8, 0.2, 0.1]), np.array([0, 0, 1, 1])) == 0.0
+    assert auroc(np.full(4, 0.5), np.array([0, 1, 0, 1])) == 0.5
+    with pytest.raises(errors.ConfigError):
+        fit_logistic(X, np.ones(2000))

@@ -1,0 +1,251 @@
+"""Confidence calibration: the result's evidence → the chance that its pose is right, fitted per model file on rendered
+tabletop views with occluders and sensor noise (``equipose.train.data.occluded``).
+
+    python -m equipose.train.evaluation.confidence --model sdk/models/mug-tabletop.onnx [--views 240] [--seed 0]
+        [--write] [--json F] [--plot F] [--data-root DIR] [--rows F]
+
+Each view runs through ``PoseEstimator.predict`` four times: box prompt (the visible mask's bounding box, as a
+detector gives it) and mask prompt, each without and with the up prior "plane". A pose is *right* when its rotation
+is within 10° of the truth modulo the model's symmetry (mugs: full 6D; cans: unsigned axis) and its centre within
+2 cm. The logistic model σ(bias + Σ wᵢ·featureᵢ) over ``equipose.runtime.stages.confidence``'s evidence is fitted on
+the views of even-numbered test shapes and measured on the odd-numbered ones (shape-disjoint); ``--write`` stores
+the fitted model (and its held-out figures) as ``confidence_calibration`` in the model file and its int8 sibling.
+
+Convention: angles in degrees, distances in metres, probabilities in [0, 1]; AUROC for "right" (1 = right ranked
+above every wrong), ECE over 10 equal-width bins, "confident-wrong" = error > 30°, confidence > 0.5, not ambiguous.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import pathlib
+import sys
+import time
+
+import numpy as np
+from scipy.optimize import minimize
+from scipy.stats import rankdata
+
+from equipose.core.errors import ConfigError, EquiposeError
+from equipose.core.metadata import CONFIDENCE_FEATURES
+
+__all__ = ["RIGHT_DEG", "RIGHT_M", "collect", "fit_logistic", "auroc", "reliability", "summarize", "main"]
+
+RIGHT_DEG = 10.0        # a right pose: rotation error ≤ this (modulo symmetry) ...
+RIGHT_M = 0.02          # ... and centre error ≤ this (metres)
+WRONG_DEG = 30.0        # confident-wrong: error above this with confidence > 0.5, not flagged ambiguous
+L2 = 1e-3               # ridge on the standardised weights (per mean log-loss)
+
+
+def _truth_symmetry(est) -> tuple:
+    """(symmetry string, unsigned axis) the ground truth is compared under: mugs are full 6D (their handle stage),
+    cylinders ("shape_prior": cylinder) have no axis sign."""
+    if est.metadata.get("handle") is not None:
+        return "none", False
+    return est.symmetry, est.metadata.get("shape_prior") == "cylinder"
+
+
+def collect(model, views: int, seed: int = 0, data_root=None, progress: bool = True) -> list:
+    """Rows of one model on ``views`` rendered occluded views × {box, mask} × {no up, up "plane"}.
+
+    Convention: each row {"shape", "view", "prompt", "up", "rot_err" (deg), "centre_err" (m), "right" (bool),
+    "confidence", "ambiguous", "occluded" (true hidden share), "ms", **evidence}; views cycle through the test shapes
+    of the model's tabletop category."""
+    from tqdm import tqdm
+
+    from equipose import PoseEstimator
+    from equipose.eval.metrics import rotation_errors
+    from equipose.train.data.occluded import render_occluded
+    from equipose.train.data.tabletop import TABLETOP, tabletop_sources
+    from equipose.train.data.modelnet import default_data_root
+
+    est = PoseEstimator(model) if not hasattr(model, "predict") else model
+    if est.category not in TABLETOP:
+        raise ConfigError(f"confidence calibration renders tabletop scenes; {est.category!r} is not one of "
+                          f"{', '.join(TABLETOP)}")
+    sources = tabletop_sources(data_root or default_data_root(), est.category, "test")
+    symmetry, unsigned = _truth_symmetry(est)
+    rows = []
+    for v in tqdm(range(views), desc=f"confidence {est.category}", disable=not progress):
+        s = v % len(sources)
+        view = render_occluded(sources[s][1], np.random.default_rng([seed, v]))
+        if view is None:
+            continue
+        for prompt in ("box", "mask"):
+            region = {"box": view.box} if prompt == "box" else {"mask": view.mask}
+            for up in (None, "plane"):
+                t0 = time.perf_counter()
+                try:
+                    r = est.predict(view.depth, view.K, depth_unit="mm", up=up, **region)
+                except EquiposeError:
+                    continue
+                ms = (time.perf_counter() - t0) * 1e3
+                rot = float(rotation_errors(r.rotation[None], view.R[None], symmetry, unsigned_axis=unsigned)[0])
+                centre = float(np.linalg.norm(r.translation - view.t))
+                rows.append({"shape": s, "view": v, "prompt": prompt, "up": up or "none", "rot_err": rot,
+                             "centre_err": centre, "right": bool(rot <= RIGHT_DEG and centre <= RIGHT_M),
+                             "confidence": float(r.confidence), "ambiguous": bool(r.ambiguous),
+                             "occluded": float(view.occluded), "ms": ms, **r.extras["evidence"]})
+    return rows
+
+
+def _matrix(rows: list, features) -> tuple:
+    X = np.array([[row[f] for f in features] for row in rows], np.float64)     # [n, F]
+    y = np.array([row["right"] for row in rows], np.float64)                   # [n]
+    return X, y
+
+
+def fit_logistic(X: np.ndarray, y: np.ndarray, l2: float = L2) -> tuple:
+    """Ridge logistic regression. Convention: X [n, F], y [n] in {0, 1} → (weights [F], bias) on the raw features
+    (fitted on standardised ones, so the ridge treats every feature alike)."""
+    if X.ndim != 2 or len(X) != len(y) or len(np.unique(y)) < 2:
+        raise ConfigError(f"logistic fit needs X [n, F] and both outcomes in y; got {X.shape}, {np.unique(y)}")
+    mu, sd = X.mean(0), X.std(0)
+    sd[sd < 1e-9] = 1.0
+    Z = (X - mu) / sd                                                           # [n, F]
+
+    def loss(p):
+        w, b = p[:-1], p[-1]
+        z = Z @ w + b
+        nll = np.mean(np.logaddexp(0.0, z) - y * z)
+        q = 1.0 / (1.0 + np.exp(-z)) - y                                       # dNLL/dz
+        return nll + l2 * w @ w, np.append(Z.T @ q / len(y) + 2 * l2 * w, q.mean())
+
+    p = minimize(loss, np.zeros(X.shape[1] + 1), jac=True, method="L-BFGS-B").x
+    w = p[:-1] / sd
+    return w, float(p[-1] - w @ mu)
+
+
+def predict_logistic(X: np.ndarray, w: np.ndarray, b: float) -> np.ndarray:
+    """[n] σ(b + X·w)."""
+    return 1.0 / (1.0 + np.exp(-np.clip(X @ w + b, -60.0, 60.0)))
+
+
+def auroc(score: np.ndarray, y: np.ndarray) -> float:
+    """Area under the ROC curve of ``score`` for y = 1 (ties count half); NaN when one class is missing."""
+    y = np.asarray(y, bool)
+    n1, n0 = int(y.sum()), int((~y).sum())
+    if not n1 or not n0:
+        return float("nan")
+    ranks = rankdata(score)
+    return float((ranks[y].sum() - n1 * (n1 + 1) / 2) / (n1 * n0))
+
+
+def reliability(p: np.ndarray, y: np.ndarray, bins: int = 10) -> tuple:
+    """([{"lo", "hi", "n", "mean_confidence", "right_rate"}], ECE) over equal-width confidence bins."""
+    edges = np.linspace(0.0, 1.0, bins + 1)
+    k = np.clip(np.digitize(p, edges) - 1, 0, bins - 1)
+    table, ece = [], 0.0
+    for i in range(bins):
+        sel = k == i
+        if not sel.any():
+            continue
+        mc, rr = float(p[sel].mean()), float(np.mean(y[sel]))
+        table.append({"lo": float(edges[i]), "hi": float(edges[i + 1]), "n": int(sel.sum()), "mean_confidence": mc,
+                      "right_rate": rr})
+        ece += sel.mean() * abs(mc - rr)
+    return table, float(ece)
+
+
+def summarize(rows: list, p: np.ndarray) -> dict:
+    """Held-out figures of confidences ``p`` [n] for ``rows``: AUROC, ECE, Brier, confident-wrong counts, and the
+    same for the selection margin (the uncalibrated confidence) for comparison."""
+    y = np.array([r["right"] for r in rows], bool)
+    err = np.array([r["rot_err"] for r in rows])
+    amb = np.array([r["ambiguous"] for r in rows], bool)
+    margin = np.array([r["margin"] for r in rows])
+    table, ece = reliability(p, y)
+    _, ece_m = reliability(margin, y)
+    wrong = (err > WRONG_DEG) & ~amb
+    return {"n": int(len(rows)), "right_rate": float(y.mean()), "auroc": auroc(p, y), "ece": ece,
+            "brier": float(np.mean((p - y) ** 2)), "confident_wrong": int(np.sum(wrong & (p > 0.5))),
+            "margin_auroc": auroc(margin, y), "margin_ece": ece_m,
+            "margin_confident_wrong": int(np.sum(wrong & (margin > 0.5))), "reliability": table}
+
+
+def split_rows(rows: list) -> tuple:
+    """(fit rows: even-numbered test shapes, held-out rows: odd-numbered ones)."""
+    return [r for r in rows if r["shape"] % 2 == 0], [r for r in rows if r["shape"] % 2 == 1]
+
+
+def calibrate(rows: list, features=CONFIDENCE_FEATURES) -> tuple:
+    """(metadata dict for ``confidence_calibration``, held-out summary, held-out rows with "p")."""
+    fit, held = split_rows(rows)
+    if not fit or not held:
+        raise ConfigError("confidence calibration needs views of at least two test shapes")
+    features = [f for f in features if np.ptp([r[f] for r in rows]) > 0]      # constant features carry nothing
+    w, b = fit_logistic(*_matrix(fit, features))
+    p = predict_logistic(_matrix(held, features)[0], w, b)
+    summary = summarize(held, p)
+    for r, q in zip(held, p):
+        r["p"] = float(q)
+    meta = {"features": list(features), "weights": [round(float(v), 6) for v in w], "bias": round(b, 6),
+            "definition": f"P(rotation within {RIGHT_DEG:g} deg modulo symmetry and centre within "
+                          f"{RIGHT_M * 100:g} cm)",
+            "fitted_on": f"{len(fit)} rendered occluded tabletop views (even test shapes); held out {len(held)}",
+            "held_out": {k: round(v, 4) if isinstance(v, float) else v for k, v in summary.items()
+                         if k != "reliability"}}
+    return meta, summary, held
+
+
+def plot_reliability(summary: dict, path, title: str) -> None:
+    """Reliability diagram (mean confidence vs right rate per bin, bin sizes as bars) as a PNG."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    t = summary["reliability"]
+    fig, ax = plt.subplots(figsize=(4.2, 4.2))
+    ax.plot([0, 1], [0, 1], "k:", lw=1)
+    ax.plot([b["mean_confidence"] for b in t], [b["right_rate"] for b in t], "o-", label="calibrated confidence")
+    ax2 = ax.twinx()
+    ax2.bar([(b["lo"] + b["hi"]) / 2 for b in t], [b["n"] for b in t], width=0.08, alpha=0.2, color="gray")
+    ax2.set_ylabel("results per bin")
+    ax.set_xlabel("confidence")
+    ax.set_ylabel("share right (≤ 10°, ≤ 2 cm)")
+    ax.set_xlim(0, 1)
+    ax.set_ylim(0, 1)
+    ax.set_title(f"{title}\nAUROC {summary['auroc']:.3f}, ECE {summary['ece']:.3f} (held out, n={summary['n']})",
+                 fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--model", required=True)
+    ap.add_argument("--views", type=int, default=240)
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--data-root", dest="data_root")
+    ap.add_argument("--rows", help="fit on the rows of an earlier --json instead of rendering again")
+    ap.add_argument("--write", action="store_true", help="store the fit in the model file (and its .int8 sibling)")
+    ap.add_argument("--json", help="write the summary and every row here")
+    ap.add_argument("--plot", help="write the held-out reliability diagram (PNG) here")
+    a = ap.parse_args(argv)
+    from equipose import PoseEstimator
+    if a.rows:
+        rows = json.loads(pathlib.Path(a.rows).read_text())["rows"]
+    else:
+        rows = collect(PoseEstimator(a.model), a.views, a.seed, a.data_root)
+    meta, summary, _ = calibrate(rows)
+    print(f"{pathlib.Path(a.model).name}: {len(rows)} results, right {summary['right_rate']:.2f}; held out: "
+          f"AUROC {summary['auroc']:.3f} (margin {summary['margin_auroc']:.3f}), ECE {summary['ece']:.3f} "
+          f"(margin {summary['margin_ece']:.3f}), confident-wrong {summary['confident_wrong']} "
+          f"(margin {summary['margin_confident_wrong']})")
+    print("weights:", dict(zip(meta["features"], meta["weights"])), "bias", meta["bias"])
+    if a.json:
+        pathlib.Path(a.json).write_text(json.dumps({"calibration": meta, "summary": summary, "rows": rows}, indent=1))
+    if a.plot:
+        plot_reliability(summary, a.plot, pathlib.Path(a.model).stem)
+    if a.write:
+        from equipose.export.onnx_export import update_metadata
+        from equipose.export.quantize import int8_path_for
+        update_metadata(a.model, confidence_calibration=meta)
+        sibling = int8_path_for(a.model)
+        if sibling.is_file():
+            update_metadata(sibling, confidence_calibration=meta)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
