@@ -21,7 +21,7 @@ import numpy as np
 
 from equipose.core.errors import InvalidPointsError
 
-__all__ = ["HandleFit", "fit_handle", "align_handle", "turn_about_z", "handle_zone_count", "HANDLE_MIN_POINTS",
+__all__ = ["HandleFit", "fit_handle", "align_handle", "turn_about_z", "handle_zone_count", "handle_zone_mask", "HANDLE_MIN_POINTS",
            "HANDLE_MIN_FRACTION", "HANDLE_MIN_SHARE", "HANDLE_MIN_MASS"]
 
 HANDLE_MIN_SHARE = 0.5           # fit_handle's window share for a handle seen in a partial view (complete clouds: 0.45)
@@ -107,7 +107,12 @@ def align_handle(points: np.ndarray, fit: HandleFit | None = None) -> np.ndarray
 
 
 def handle_zone_count(observed_obj: np.ndarray, canonical_obj: np.ndarray, direction) -> int:
-    """How many observed points fall where the handle is, both clouds in the category frame.
+    """How many observed points fall where the handle is (``handle_zone_mask``'s count)."""
+    return int(np.count_nonzero(handle_zone_mask(observed_obj, canonical_obj, direction)))
+
+
+def handle_zone_mask(observed_obj: np.ndarray, canonical_obj: np.ndarray, direction) -> np.ndarray:
+    """[P] bool: which observed points fall where the handle is, both clouds in the category frame.
 
     Convention: ``observed_obj`` [P, 3] and ``canonical_obj`` [M, 3] in the same unit, category frame (z up, the
     handle along ``direction`` [3], a horizontal unit vector). The body axis and the per-height body radius come from
@@ -121,7 +126,7 @@ def handle_zone_count(observed_obj: np.ndarray, canonical_obj: np.ndarray, direc
     can = np.asarray(canonical_obj, np.float64)
     d = np.asarray(direction, np.float64).reshape(3)
     if obs.ndim != 2 or obs.shape[1] != 3 or can.ndim != 2 or can.shape[1] != 3 or len(can) < 50:
-        raise InvalidPointsError(f"handle_zone_count needs [P, 3] and [M ≥ 50, 3] clouds, got {obs.shape}, {can.shape}")
+        raise InvalidPointsError(f"handle_zone_mask needs [P, 3] and [M ≥ 50, 3] clouds, got {obs.shape}, {can.shape}")
     turn = turn_about_z(-np.arctan2(d[1], d[0]))                                     # handle direction → +x
     obs, can = obs @ turn.T, can @ turn.T
     fit = fit_handle(can)
@@ -138,4 +143,4 @@ def handle_zone_count(observed_obj: np.ndarray, canonical_obj: np.ndarray, direc
     v = obs[:, :2] - c
     r = np.linalg.norm(v, axis=1)
     az = np.degrees(np.abs(np.arctan2(v[:, 1], v[:, 0])))
-    return int(np.sum(inside_h & (r > 1.15 * body[band_o]) & (az < 40.0)))
+    return inside_h & (r > 1.15 * body[band_o]) & (az < 40.0)

@@ -4,7 +4,8 @@ One module per step: ``validate`` (units, intrinsics, regions), ``crop`` (region
 plane RANSAC), ``segment`` (tabletop auto-crop masks), ``sampling`` (FPS ordering, centring, scaling).
 """
 from equipose.preprocess.crop import (CropResult, box_object_cluster, check_crop_options, crop_points, depth_clusters,
-                                      nearest_depth_cluster, organized_outlier_mask, statistical_outlier_mask)
+                                      nearest_depth_cluster, organized_outlier_mask, statistical_outlier_mask,
+                                      surface_segments)
 from equipose.preprocess.plane import find_support_plane, fit_plane_ransac
 from equipose.preprocess.sampling import MIN_POINTS, PreparedPoints, check_spread, fps_order, prepare_points
 from equipose.preprocess.segment import auto_masks
@@ -13,5 +14,6 @@ from equipose.preprocess.validate import (check_box, check_intrinsics, check_mas
 
 __all__ = ["CropResult", "PreparedPoints", "MIN_POINTS", "depth_to_metres", "check_intrinsics", "check_box",
            "check_mask", "crop_points", "prepare_points", "check_points", "statistical_outlier_mask",
-           "organized_outlier_mask", "nearest_depth_cluster", "box_object_cluster", "depth_clusters", "auto_masks", "fit_plane_ransac", "fps_order",
+           "organized_outlier_mask", "nearest_depth_cluster", "box_object_cluster", "surface_segments",
+           "depth_clusters", "auto_masks", "fit_plane_ransac", "fps_order",
            "find_support_plane", "check_regions", "check_crop_options", "check_spread"]

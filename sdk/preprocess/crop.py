@@ -20,7 +20,7 @@ from equipose.preprocess.sampling import MIN_POINTS
 from equipose.preprocess.validate import check_box, check_intrinsics, check_mask, depth_to_metres
 
 __all__ = ["CropResult", "check_crop_options", "crop_points", "statistical_outlier_mask", "organized_outlier_mask",
-           "nearest_depth_cluster", "depth_clusters", "box_object_cluster"]
+           "nearest_depth_cluster", "depth_clusters", "surface_segments", "box_object_cluster"]
 
 
 @dataclass
@@ -135,38 +135,149 @@ def depth_clusters(z: np.ndarray, gap_m: float = 0.03, rel_gap: float = 0.03) ->
     return labels
 
 
+def surface_segments(z: np.ndarray, rows: np.ndarray, cols: np.ndarray, step: int, focal: float,
+                     min_jump: float = 0.012, slant: float = 4.0) -> tuple:
+    """Connected surfaces of an organized crop.
+
+    Convention: ``z`` [P] metres of points on a regular pixel lattice of pitch ``step`` (``rows``, ``cols`` [P] frame
+    pixels); ``focal`` pixels. Lattice neighbours (4-connected) belong to one surface when their depths differ by less
+    than max(``min_jump`` · max(1, z²), ``slant`` · step · z / focal): the sensor's noise grows with z², and a surface
+    slanted away from the camera steps by up to ``slant`` lattice spacings per pixel. An occluder standing in front
+    of the object is its own surface even where its depths overlap the object's, which a split of the depth values
+    alone cannot tell apart.
+    Returns (labels [P] int, 0 = the nearest surface by median depth; cut (i [L], j [L]): the neighbour pairs split
+    by a depth jump, ``z[j] − z[i]`` the jump).
+    """
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+    P = len(z)
+    gi, gj = (rows - rows.min()) // step, (cols - cols.min()) // step          # [P] lattice indices
+    grid = np.full((int(gi.max()) + 2, int(gj.max()) + 2), -1, np.int64)       # padded: shifts never wrap
+    grid[gi, gj] = np.arange(P)
+    a = np.concatenate([grid[:-1, :].ravel(), grid[:, :-1].ravel()])           # each point and its lower / right
+    b = np.concatenate([grid[1:, :].ravel(), grid[:, 1:].ravel()])             # neighbour
+    ok = (a >= 0) & (b >= 0)
+    a, b = a[ok], b[ok]
+    zm = 0.5 * (z[a] + z[b])
+    tol = np.maximum(min_jump * np.maximum(1.0, zm * zm), slant * step * zm / focal)
+    link = np.abs(z[a] - z[b]) < tol
+    graph = coo_matrix((np.ones(int(link.sum())), (a[link], b[link])), shape=(P, P))
+    _, comp = connected_components(graph, directed=False)                      # [P]
+    n = int(comp.max()) + 1
+    med = np.array([np.median(z[comp == c]) for c in range(n)]) if n < 64 else \
+        np.bincount(comp, weights=z, minlength=n) / np.bincount(comp, minlength=n)   # many fragments: mean depth
+    rank = np.empty(n, np.int64)
+    rank[np.argsort(med, kind="stable")] = np.arange(n)
+    return rank[comp], (a[~link], b[~link])
+
+
+def _boundary_jumps(labels: np.ndarray, z: np.ndarray, cut: tuple, inside: np.ndarray) -> dict:
+    """{segment: median depth jump (m) from the ``inside`` points [P] bool to it, over their cut neighbour pairs}
+    for every segment outside that borders the inside; > 0: it lies behind, < 0: in front."""
+    i, j = cut
+    cross = inside[i] != inside[j]
+    i, j = i[cross], j[cross]
+    swap = ~inside[i]                                                            # orient pairs inside → outside
+    i, j = np.where(swap, j, i), np.where(swap, i, j)
+    out = {}
+    for seg in np.unique(labels[j]):
+        sel = labels[j] == seg
+        out[int(seg)] = float(np.median(z[j[sel]] - z[i[sel]]))
+    return out
+
+
+def _radius(points: np.ndarray) -> float:
+    """Robust radius (m) of a point set [P, 3]: the 95th percentile distance from the centre of its 2–98 % box (a
+    partial view's median lies off the object's centre, towards the camera)."""
+    lo, hi = np.percentile(points, [2.0, 98.0], axis=0)                          # [3], [3]
+    return float(np.percentile(np.linalg.norm(points - 0.5 * (lo + hi), axis=1), 95))
+
+
+def _grow(seed: int, labels: np.ndarray, z: np.ndarray, cut: tuple, points: np.ndarray, max_radius: float) -> tuple:
+    """The object grown from surface ``seed``: the surfaces bordering it from behind join (smallest depth jump first)
+    while the union's radius stays within ``max_radius`` — a cup's front wall and its inside beyond the rim are two
+    surfaces of one object, while what stands in front of an object never joins it, and the wall behind makes the
+    union too large. Returns (members [P] bool, {bordering surface left out: its median jump, < 0 = in front})."""
+    keep = labels == seed
+    for _ in range(32):                                                         # rounds of growth
+        jumps = _boundary_jumps(labels, z, cut, keep)
+        grown = False
+        for seg, jump in sorted(jumps.items(), key=lambda kv: kv[1]):           # nearest in depth first
+            if not 0.0 < jump <= 2.0 * max_radius:                              # only what it hides in part
+                continue
+            union = keep | (labels == seg)
+            if _radius(points[union]) <= max_radius:
+                keep, grown = union, True
+        if not grown:
+            return keep, jumps
+    return keep, _boundary_jumps(labels, z, cut, keep)
+
+
 def box_object_cluster(z: np.ndarray, rows: np.ndarray, cols: np.ndarray, box, min_fraction: float = 0.1,
-                       border: float = 0.08) -> tuple:
-    """The depth cluster a box prompt is drawn around, chosen by evidence instead of nearness.
+                       border: float = 0.08, labels: np.ndarray | None = None, cut: tuple | None = None,
+                       points: np.ndarray | None = None, focal: float | None = None) -> tuple:
+    """The object a box prompt is drawn around, chosen by evidence instead of nearness.
 
     Convention: ``z`` [P] metres, ``rows``, ``cols`` [P] frame pixels of the box's points; ``box`` (x0, y0, x1, y1)
-    pixel bounds. Among the depth clusters (``depth_clusters``) holding at least ``min_fraction`` of the points, each
-    scores share × (1 − its share of the box's border band, the outer ``border`` of each side) × exp(−2 d²), d the
-    offset of its pixel centroid from the box centre in half-box units: a detector's box is centred on its object
-    and touches it only at its extremes, while what stands in front (an occluder) sits off-centre and background
-    surrounds the object along the border. Returns ([P] bool, info {"clusters", "occluded_fraction": share of the
-    chosen cluster's view taken by nearer clusters, i.e. points in front of it / (those + its own)}).
+    pixel bounds. Candidates: with ``labels`` [P] (0 = nearest), ``cut`` (``surface_segments``), ``points`` [P, 3]
+    metres and ``focal`` pixels, each surface holding at least ``min_fraction`` of the points, grown by the surfaces it
+    hides in part while the union fits in a sphere of half the box's diagonal at its depth (``_grow``: the box bounds
+    the object's size); otherwise the split of the depth values (``depth_clusters``).
+
+    Each candidate scores share × fit × exp(−2 d²), d the offset of its pixel centroid from the box centre in half-box
+    units (a detector's box is centred on its object). Depth clusters: fit = 1 − the candidate's share of the box's
+    border band (the outer ``border`` of each side), as background surrounds the object along the border. Surfaces:
+    fit = the share of the box's width × height its pixels span (the box spans its object, not what stands in front
+    of it), × 0.3 when it still borders from in front a large surface that does not reach all four sides of the box
+    (it hides another object: an occluder; background reaches every side).
+    Returns ([P] bool, info {"clusters", "front_points", "occluded_fraction": front points / (those + the object's)}):
+    in front = the depth clusters nearer than the chosen one, or the surfaces bordering the grown object from in front.
     """
     P = len(z)
     if P == 0:
-        return np.zeros(0, bool), {"clusters": 0, "occluded_fraction": 0.0}
-    labels = depth_clusters(z)
+        return np.zeros(0, bool), {"clusters": 0, "front_points": 0, "occluded_fraction": 0.0}
+    grow = labels is not None and cut is not None and points is not None and focal
+    labels = depth_clusters(z) if labels is None else np.asarray(labels)
     counts = np.bincount(labels)                                                # [C], label 0 nearest
+    big = np.nonzero(counts >= max(1, min_fraction * P))[0]
+    if not len(big):
+        big = np.array([int(np.argmax(counts))])
     x0, y0, x1, y1 = box
+    if grow:
+        cands = []
+        for seg in big:                                                         # the box bounds the object's size too
+            zs = float(np.median(z[labels == seg]))
+            half_diag = 0.5 * math.hypot(x1 - x0, y1 - y0) * zs / focal
+            cands.append(_grow(int(seg), labels, z, cut, points, half_diag))
+    else:
+        cands = [(labels == seg, None) for seg in big]
     cx, cy, hw, hh = (x0 + x1) / 2.0, (y0 + y1) / 2.0, max((x1 - x0) / 2.0, 1.0), max((y1 - y0) / 2.0, 1.0)
     band = ((cols - x0) < border * 2 * hw) | ((x1 - 1 - cols) < border * 2 * hw) | \
         ((rows - y0) < border * 2 * hh) | ((y1 - 1 - rows) < border * 2 * hh)    # [P] in the border band
-    on_band = np.bincount(labels, weights=band, minlength=len(counts))         # [C]
-    u = np.bincount(labels, weights=cols, minlength=len(counts)) / np.maximum(counts, 1)
-    v = np.bincount(labels, weights=rows, minlength=len(counts)) / np.maximum(counts, 1)
-    offset2 = ((u - cx) / hw) ** 2 + ((v - cy) / hh) ** 2                       # [C]
-    score = counts / P * (1.0 - on_band / max(band.sum(), 1)) * np.exp(-2.0 * offset2)
-    score[counts < max(1, min_fraction * P)] = -1.0                             # too small to be the object
-    chosen = int(np.argmax(score)) if score.max() > 0 else int(np.argmax(counts))
-    front = int(counts[:chosen].sum())                                          # points nearer than the object
-    info = {"clusters": int((counts >= max(1, min_fraction * P)).sum()),
-            "occluded_fraction": round(front / max(front + int(counts[chosen]), 1), 4)}
-    return labels == chosen, info
+    sides = np.stack([cols - x0 < 2 * border * hw, x1 - 1 - cols < 2 * border * hw,
+                      rows - y0 < 2 * border * hh, y1 - 1 - rows < 2 * border * hh])   # [4, P] near each side
+    enclosing = {seg: bool(np.all(np.any(sides[:, labels == seg], 1))) for seg in np.unique(labels)}
+    scores = []
+    for members, jumps in cands:
+        n = int(members.sum())
+        offset2 = ((cols[members].mean() - cx) / hw) ** 2 + ((rows[members].mean() - cy) / hh) ** 2
+        if jumps is None:                                   # depth clusters: background surrounds the object
+            fit = 1.0 - band[members].sum() / max(band.sum(), 1)
+        else:                                               # surfaces: the box spans its object, which hides nothing
+            span = (np.ptp(cols[members]) + 1) / (2 * hw) * (np.ptp(rows[members]) + 1) / (2 * hh)
+            hides = any(jump > 0 and counts[seg] >= min_fraction * P and not enclosing[seg]
+                        for seg, jump in jumps.items())     # a large surface behind it, not background all round
+            fit = min(span, 1.0) * (0.3 if hides else 1.0)
+        scores.append(n / P * fit * np.exp(-2.0 * offset2))
+    best = int(np.argmax(scores))
+    keep, jumps = cands[best]
+    if jumps is None:                                                           # depth clusters: nearer = in front
+        front = int(counts[: int(big[best])].sum())
+    else:
+        front = int(sum(counts[seg] for seg, jump in jumps.items() if jump < 0.0))
+    info = {"clusters": int(len(big)), "front_points": front,
+            "occluded_fraction": round(front / max(front + int(keep.sum()), 1), 4)}
+    return keep, info
 
 
 # ----------------------------------------------------------------------------------------------------------------------
@@ -218,8 +329,10 @@ def crop_points(depth, K, *, box=None, mask=None, depth_unit="mm", image_size=No
     plane removal (points less than ``plane_height`` above the frame's dominant plane, or beyond it, are dropped;
     ``support_plane`` = precomputed (normal, offset) from ``find_support_plane``; default on for a box without a
     mask, and skipped when the frame has no dominant plane or too few points would remain) → regular pixel-grid
-    subsampling to at most ``max_points`` → background rejection (default on for a box without a mask: the depth
-    cluster the box is drawn around, ``box_object_cluster``; what lies in front of it is reported as
+    subsampling to at most ``max_points`` → background rejection (default on for a box without a mask: the object
+    the box is drawn around, ``box_object_cluster``, first among the depth clusters (background far behind, occluders
+    well in front), then among the connected surfaces of that cluster on the pixel grid (``surface_segments``: an
+    occluder whose depths overlap the object's); what lies in front of it is reported as
     ``diagnostics["occluded_fraction"]``) → statistical outlier removal (``outlier_std``; 0 disables): on the pixel grid with its 8
     neighbours (``organized_outlier_mask``) for the default ``outlier_k`` = 8, else k-d tree with k = ``outlier_k``.
     Raises ``DepthDtypeError``, ``DepthUnitError``, ``EmptyDepthError``, ``IntrinsicsError``, ``RegionError``,
@@ -297,8 +410,18 @@ def crop_points(depth, K, *, box=None, mask=None, depth_unit="mm", image_size=No
     if reject_background is None:
         reject_background = box is not None and mask is None
     if reject_background:
-        if box is not None:                                                     # the cluster the box is drawn around
-            keep, info = box_object_cluster(z, rows, cols, (x0, y0, x1, y1))    # [P]
+        if box is not None:                                                     # the surface the box is drawn around
+            keep, info = box_object_cluster(z, rows, cols, (x0, y0, x1, y1))  # [P] among the depth clusters
+            if s and keep.sum() >= min_points:                                  # lattice: then among its surfaces
+                sub = np.nonzero(keep)[0]                                       # [P1]
+                labels, cut = surface_segments(z[sub], rows[sub], cols[sub], s, float(Kf[1, 1]))
+                inner, info2 = box_object_cluster(z[sub], rows[sub], cols[sub], (x0, y0, x1, y1), labels=labels,
+                                                  cut=cut, points=pts[sub], focal=float(Kf[1, 1]))
+                keep = np.zeros(len(z), bool)
+                keep[sub[inner]] = True
+                front = info["front_points"] + info2["front_points"]
+                info = {"clusters": info["clusters"], "surfaces": info2["clusters"], "front_points": front,
+                        "occluded_fraction": round(front / max(front + int(keep.sum()), 1), 4)}
             diag.update(info)
         else:
             keep = nearest_depth_cluster(z)                                     # [P]

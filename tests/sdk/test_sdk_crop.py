@@ -183,3 +183,52 @@ def test_box_object_cluster_prefers_the_centred_cluster_over_a_nearer_one():
     keep, info = box_object_cluster(z, rows, cols, (0, 0, 100, 100))
     assert keep[:600].all() and not keep[600:].any()                            # not the occluder, not the wall
     assert info["clusters"] == 3 and info["occluded_fraction"] == pytest.approx(300 / 900, abs=1e-3)
+
+
+@pytest.mark.parametrize("width_px", [20, 45, 90])
+def test_box_prompt_on_surfaces_keeps_the_object_behind_the_occluder(width_px):
+    depth, visible, box = _occluded_sphere(width_px)
+    by_box = crop_points(depth, K_VGA, box=box)
+    dist = np.linalg.norm(by_box.points - CENTRE, axis=1)
+    assert np.all(np.abs(dist - RADIUS) < 0.004) and by_box.diagnostics["occluded_fraction"] > 0.05
+    by_mask = crop_points(depth, K_VGA, mask=visible)
+    assert np.linalg.norm(by_box.points.mean(0) - by_mask.points.mean(0)) < 0.005
+
+
+def test_surface_segments_split_an_occluder_whose_depths_overlap_the_object():
+    from equipose.preprocess import box_object_cluster, depth_clusters, surface_segments
+    # an image lattice: a tilted object (depth 0.95 → 0.80 m from top to bottom of the box) and a post 4 cm in front
+    # of its lower-left part, whose depths (0.83 → 0.76) overlap the object's range
+    rows, cols = np.mgrid[0:60, 0:60]
+    z = 0.95 - 0.15 * rows / 59.0                                                # [60, 60] object
+    post = (rows > 30) & (cols < 20)
+    z = np.where(post, z - 0.04, z)
+    rows, cols, z = rows.ravel(), cols.ravel(), z.ravel()
+    assert len(np.unique(depth_clusters(z))) == 1                                # one depth cluster: inseparable
+    labels, cut = surface_segments(z, rows, cols, step=1, focal=500.0)
+    assert len(np.unique(labels[post.ravel()])) == 1 and len(np.unique(labels)) == 2
+    pts = np.stack([(cols - 30) * z / 500.0, (rows - 30) * z / 500.0, z], 1)
+    keep, info = box_object_cluster(z, rows, cols, (0, 0, 60, 60), labels=labels, cut=cut, points=pts, focal=500.0)
+    assert keep[~post.ravel()].all() and not keep[post.ravel()].any()
+    assert info["occluded_fraction"] == pytest.approx(post.sum() / 3600, abs=1e-3)
+
+
+def _xyxy(box):
+    return box[0], box[1], box[0] + box[2], box[1] + box[3]
+
+
+def test_box_prompt_matches_the_mask_on_rendered_occluded_mugs(data_root):
+    from equipose.preprocess import box_object_cluster
+    from equipose.train.data.occluded import render_occluded
+    from equipose.train.data.tabletop import tabletop_sources
+    src = tabletop_sources(data_root, "mug", "test")
+    precision, old = [], []
+    for v in range(10):
+        view = render_occluded(src[v % len(src)][1], np.random.default_rng([0, v]), occluder=1.0)
+        rows, cols = crop_points(view.depth, view.K, box=view.box).pixels.T
+        precision.append(view.mask[rows, cols].mean())
+        cloud = crop_points(view.depth, view.K, box=view.box, reject_background=False)
+        keep, _ = box_object_cluster(cloud.points[:, 2], *cloud.pixels.T, _xyxy(view.box))    # depth clusters
+        old.append(view.mask[tuple(cloud.pixels[keep].T)].mean())
+    assert min(precision) > 0.95                                                 # the occluder stays out
+    assert min(old) < 0.8                                                        # where depth clusters let it in

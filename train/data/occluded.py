@@ -29,7 +29,8 @@ class OccludedView:
     """One rendered frame. ``depth`` [H, W] uint16 mm (sensor model applied); ``mask`` [H, W] bool the object's
     visible pixels; ``full_mask`` its pixels without the occluder; ``box`` (x, y, w, h) of ``mask`` (a detector's
     box); ``K`` [3, 3]; ``R`` [3, 3], ``t`` [3] metres object → camera; ``occluded`` the hidden share of the object's
-    pixels (0 without occluder); ``up`` [3] the table normal in the camera frame."""
+    pixels (0 without occluder); ``up`` [3] the table normal in the camera frame; ``part_pixels`` the visible pixels
+    of the shape points ``render_occluded`` was given as ``part`` (e.g. a mug's handle; 0 without one)."""
     depth: np.ndarray
     mask: np.ndarray
     full_mask: np.ndarray
@@ -39,6 +40,7 @@ class OccludedView:
     t: np.ndarray
     occluded: float
     up: np.ndarray
+    part_pixels: int = 0
 
 
 def panel_surfels(centre: np.ndarray, right: np.ndarray, width: float, height: float, spacing: float) -> dict:
@@ -61,9 +63,10 @@ def _box(mask: np.ndarray):
 
 def render_occluded(shape: dict, rng: np.random.Generator, *, distance_m=(0.5, 1.2), occluder: float = 0.7,
                     sensor: SensorModel | None = SensorModel(), size=(640, 480), fov_y_deg: float = 60.0,
-                    min_visible: float = 0.35, tries: int = 8) -> OccludedView | None:
+                    min_visible: float = 0.35, tries: int = 8, part=None) -> OccludedView | None:
     """One view of a surfel ``shape`` ({"points", "normals", "radii"}, metres, category frame) on a table, with an
-    occluder panel in front of it with probability ``occluder``.
+    occluder panel in front of it with probability ``occluder``. ``part``: optional [P] bool over the shape's points
+    whose visible pixels the view counts (``part_pixels``: in front of everything else within 2 mm).
 
     Views where less than ``min_visible`` of the object's pixels stay visible (or fewer than 150 pixels) are drawn
     again, up to ``tries`` times; returns None when none qualifies.
@@ -96,10 +99,16 @@ def render_occluded(shape: dict, rng: np.random.Generator, *, distance_m=(0.5, 1
         if n_vis < 150 or n_vis < min_visible * n_full:
             continue
         d = np.minimum(np.minimum(d_obj, d_tab), d_occ)                        # [H, W] m, inf = nothing
+        part_px = 0
+        if part is not None and np.any(part):
+            sel = np.asarray(part, bool)
+            d_part = splat_surfels(pts[sel] @ R.T + t, np.asarray(shape["normals"])[sel] @ R.T,
+                                   np.asarray(shape["radii"])[sel], K, size)
+            part_px = int(np.count_nonzero(np.isfinite(d_part) & (d_part <= d + 0.002)))
         if sensor is not None:
             d = apply_sensor(d, rng, sensor)
         depth, _ = depth_to_uint16(np.where(d > 0, d, np.inf))
         mask = mask & (depth > 0)
         return OccludedView(depth=depth, mask=mask, full_mask=full, box=_box(mask), K=K, R=R, t=t,
-                            occluded=1.0 - n_vis / max(n_full, 1), up=R[:, 2].copy())
+                            occluded=1.0 - n_vis / max(n_full, 1), up=R[:, 2].copy(), part_pixels=part_px)
     return None

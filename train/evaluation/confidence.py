@@ -48,9 +48,11 @@ def _truth_symmetry(est) -> tuple:
 def collect(model, views: int, seed: int = 0, data_root=None, progress: bool = True) -> list:
     """Rows of one model on ``views`` rendered occluded views × {box, mask} × {no up, up "plane"}.
 
-    Convention: each row {"shape", "view", "prompt", "up", "rot_err" (deg), "centre_err" (m), "right" (bool),
-    "confidence", "ambiguous", "occluded" (true hidden share), "ms", **evidence}; views cycle through the test shapes
-    of the model's tabletop category."""
+    Convention: each row {"shape", "view", "prompt", "up", "rot_err" (deg), "axis_err" (deg, the up axis),
+    "centre_err" (m), "right" (bool),
+    "confidence", "ambiguous", "occluded" (true hidden share), "ms", **evidence} (+ mugs: "handle_truth_px" the
+    handle's visible pixels in the render, "handle_visible", "handle_points" the result's); views cycle through the
+    test shapes of the model's tabletop category."""
     from tqdm import tqdm
 
     from equipose import PoseEstimator
@@ -65,10 +67,15 @@ def collect(model, views: int, seed: int = 0, data_root=None, progress: bool = T
                           f"{', '.join(TABLETOP)}")
     sources = tabletop_sources(data_root or default_data_root(), est.category, "test")
     symmetry, unsigned = _truth_symmetry(est)
+    handle = est.metadata.get("handle")
+    parts = [None] * len(sources)
+    if handle is not None:                                                     # each shape's own handle points
+        from equipose.core.handles import handle_zone_mask
+        parts = [handle_zone_mask(src[1]["points"], src[1]["points"], handle) for src in sources]
     rows = []
     for v in tqdm(range(views), desc=f"confidence {est.category}", disable=not progress):
         s = v % len(sources)
-        view = render_occluded(sources[s][1], np.random.default_rng([seed, v]))
+        view = render_occluded(sources[s][1], np.random.default_rng([seed, v]), part=parts[s])
         if view is None:
             continue
         for prompt in ("box", "mask"):
@@ -82,10 +89,14 @@ def collect(model, views: int, seed: int = 0, data_root=None, progress: bool = T
                 ms = (time.perf_counter() - t0) * 1e3
                 rot = float(rotation_errors(r.rotation[None], view.R[None], symmetry, unsigned_axis=unsigned)[0])
                 centre = float(np.linalg.norm(r.translation - view.t))
-                rows.append({"shape": s, "view": v, "prompt": prompt, "up": up or "none", "rot_err": rot,
+                axis = float(rotation_errors(r.rotation[None], view.R[None], "continuous:z", unsigned_axis=unsigned)[0])
+                rows.append({"shape": s, "view": v, "prompt": prompt, "up": up or "none", "rot_err": rot, "axis_err": axis,
                              "centre_err": centre, "right": bool(rot <= RIGHT_DEG and centre <= RIGHT_M),
                              "confidence": float(r.confidence), "ambiguous": bool(r.ambiguous),
                              "occluded": float(view.occluded), "ms": ms, **r.extras["evidence"]})
+                if handle is not None:
+                    rows[-1].update(handle_truth_px=view.part_pixels, handle_visible=bool(r.handle_visible),
+                                    handle_points=int(r.handle_points))
     return rows
 
 
