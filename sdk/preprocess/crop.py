@@ -145,14 +145,14 @@ def surface_segments(z: np.ndarray, rows: np.ndarray, cols: np.ndarray, step: in
     slanted away from the camera steps by up to ``slant`` lattice spacings per pixel. An occluder standing in front
     of the object is its own surface even where its depths overlap the object's, which a split of the depth values
     alone cannot tell apart.
-    Returns (labels [P] int, 0 = the nearest surface by median depth; cut (i [L], j [L]): the neighbour pairs split
+    Returns (labels [P] int, 0 = the nearest surface by mean depth; cut (i [L], j [L]): the neighbour pairs split
     by a depth jump, ``z[j] − z[i]`` the jump).
     """
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
+    import cv2
     P = len(z)
     gi, gj = (rows - rows.min()) // step, (cols - cols.min()) // step          # [P] lattice indices
-    grid = np.full((int(gi.max()) + 2, int(gj.max()) + 2), -1, np.int64)       # padded: shifts never wrap
+    gh, gw = int(gi.max()) + 1, int(gj.max()) + 1
+    grid = np.full((gh + 1, gw + 1), -1, np.int64)                              # padded: shifts never wrap
     grid[gi, gj] = np.arange(P)
     a = np.concatenate([grid[:-1, :].ravel(), grid[:, :-1].ravel()])           # each point and its lower / right
     b = np.concatenate([grid[1:, :].ravel(), grid[:, 1:].ravel()])             # neighbour
@@ -161,13 +161,17 @@ def surface_segments(z: np.ndarray, rows: np.ndarray, cols: np.ndarray, step: in
     zm = 0.5 * (z[a] + z[b])
     tol = np.maximum(min_jump * np.maximum(1.0, zm * zm), slant * step * zm / focal)
     link = np.abs(z[a] - z[b]) < tol
-    graph = coo_matrix((np.ones(int(link.sum())), (a[link], b[link])), shape=(P, P))
-    _, comp = connected_components(graph, directed=False)                      # [P]
+    # components on a doubled image: points at even cells, a kept link lights the cell between its two points
+    img = np.zeros((2 * gh - 1, 2 * gw - 1), np.uint8)
+    img[2 * gi, 2 * gj] = 1
+    la, lb = a[link], b[link]
+    img[gi[la] + gi[lb], gj[la] + gj[lb]] = 1
+    _, lab = cv2.connectedComponents(img, connectivity=4)
+    comp = lab[2 * gi, 2 * gj] - 1                                              # [P], 0-based
     n = int(comp.max()) + 1
-    med = np.array([np.median(z[comp == c]) for c in range(n)]) if n < 64 else \
-        np.bincount(comp, weights=z, minlength=n) / np.bincount(comp, minlength=n)   # many fragments: mean depth
+    mean = np.bincount(comp, weights=z, minlength=n) / np.bincount(comp, minlength=n)     # [n] mean depth
     rank = np.empty(n, np.int64)
-    rank[np.argsort(med, kind="stable")] = np.arange(n)
+    rank[np.argsort(mean, kind="stable")] = np.arange(n)
     return rank[comp], (a[~link], b[~link])
 
 
@@ -256,7 +260,7 @@ def box_object_cluster(z: np.ndarray, rows: np.ndarray, cols: np.ndarray, box, m
         ((rows - y0) < border * 2 * hh) | ((y1 - 1 - rows) < border * 2 * hh)    # [P] in the border band
     sides = np.stack([cols - x0 < 2 * border * hw, x1 - 1 - cols < 2 * border * hw,
                       rows - y0 < 2 * border * hh, y1 - 1 - rows < 2 * border * hh])   # [4, P] near each side
-    enclosing = {seg: bool(np.all(np.any(sides[:, labels == seg], 1))) for seg in np.unique(labels)}
+    enclosing = np.all([np.bincount(labels, weights=side, minlength=len(counts)) > 0 for side in sides], 0)   # [C]
     scores = []
     for members, jumps in cands:
         n = int(members.sum())
