@@ -10,6 +10,7 @@ is within 10° of the truth modulo the model's symmetry (mugs: full 6D; cans: un
 2 cm. The logistic model σ(bias + Σ wᵢ·featureᵢ) over ``equipose.runtime.stages.confidence``'s evidence is fitted on
 the views of even-numbered test shapes and measured on the odd-numbered ones (shape-disjoint); ``--write`` stores
 the fitted model (and its held-out figures) as ``confidence_calibration`` in the model file and its int8 sibling.
+ModelNet models (car, chair, ...) are fitted on their paper test set instead (``collect_modelnet``).
 
 Convention: angles in degrees, distances in metres, probabilities in [0, 1]; AUROC for "right" (1 = right ranked
 above every wrong), ECE over 10 equal-width bins, "confident-wrong" = error > 30°, confidence > 0.5, not ambiguous.
@@ -29,10 +30,11 @@ from scipy.stats import rankdata
 from equipose.core.errors import ConfigError, EquiposeError
 from equipose.core.metadata import CONFIDENCE_FEATURES
 
-__all__ = ["RIGHT_DEG", "RIGHT_M", "collect", "fit_logistic", "auroc", "reliability", "summarize", "main"]
+__all__ = ["RIGHT_DEG", "RIGHT_M", "RIGHT_DIAG", "collect", "collect_modelnet", "fit_logistic", "auroc", "reliability", "summarize", "main"]
 
 RIGHT_DEG = 10.0        # a right pose: rotation error ≤ this (modulo symmetry) ...
 RIGHT_M = 0.02          # ... and centre error ≤ this (metres)
+RIGHT_DIAG = 0.05       # ModelNet models: centre error ≤ this share of the bounding-box diagonal instead
 WRONG_DEG = 30.0        # confident-wrong: error above this with confidence > 0.5, not flagged ambiguous
 L2 = 1e-3               # ridge on the standardised weights (per mean log-loss)
 
@@ -97,6 +99,45 @@ def collect(model, views: int, seed: int = 0, data_root=None, progress: bool = T
                 if handle is not None:
                     rows[-1].update(handle_truth_px=view.part_pixels, handle_visible=bool(r.handle_visible),
                                     handle_points=int(r.handle_points))
+    return rows
+
+
+def collect_modelnet(model, data_root=None, cache_dir=None, limit: int | None = None, progress: bool = True) -> list:
+    """Rows of a ModelNet model (not tabletop) on its paper test set: partial models on the rendered test views,
+    complete models on the seeded rotations of the complete test clouds, through ``predict_points``.
+
+    Convention: rows as ``collect``'s ("prompt" = "points", "up" = "none", "shape" = the test instance); ModelNet
+    shapes have no metric size, so *right* = rotation within 10° (the evaluation's symmetry) and centre within
+    ``RIGHT_DIAG`` of the instance's bounding-box diagonal (the paper's translation unit)."""
+    from tqdm import tqdm
+
+    from equipose import PoseEstimator
+    from equipose.eval.metrics import rotation_errors
+    from equipose.train.data.modelnet import default_data_root
+    from equipose.train.evaluation.evaluate import test_dataset
+
+    est = PoseEstimator(model) if not hasattr(model, "predict") else model
+    mode = "partial" if est.partial else "complete"
+    ds = test_dataset(data_root or default_data_root(), est.category, mode, est.num_points, limit=limit,
+                      cache_dir=cache_dir)
+    symmetry, unsigned = est.symmetry, False
+    rows = []
+    for i in tqdm(range(len(ds)), desc=f"confidence {est.category}-{mode}", disable=not progress):
+        smp = ds.raw(i)
+        t0 = time.perf_counter()
+        try:
+            r = est.predict_points(smp["points_m"])
+        except EquiposeError:
+            continue
+        ms = (time.perf_counter() - t0) * 1e3
+        R_gt = np.asarray(smp["rotation"], np.float64)
+        rot = float(rotation_errors(r.rotation[None], R_gt[None], symmetry, unsigned_axis=unsigned)[0])
+        axis = float(rotation_errors(r.rotation[None], R_gt[None], "continuous:z")[0])
+        centre = float(np.linalg.norm(r.translation - np.asarray(smp["translation_m"], np.float64)) / smp["diag_m"])
+        rows.append({"shape": int(smp["instance"]), "view": i, "prompt": "points", "up": "none", "rot_err": rot,
+                     "axis_err": axis, "centre_err": centre,
+                     "right": bool(rot <= RIGHT_DEG and centre <= RIGHT_DIAG), "confidence": float(r.confidence),
+                     "ambiguous": bool(r.ambiguous), "occluded": 0.0, "ms": ms, **r.extras["evidence"]})
     return rows
 
 
@@ -185,6 +226,7 @@ def calibrate(rows: list, features=CONFIDENCE_FEATURES) -> tuple:
     if not fit or not held:
         raise ConfigError("confidence calibration needs views of at least two test shapes")
     features = [f for f in features if np.ptp([r[f] for r in rows]) > 0]      # constant features carry nothing
+    tabletop = rows[0]["prompt"] != "points"
     w, b = fit_logistic(*_matrix(fit, features))
     p = predict_logistic(_matrix(held, features)[0], w, b)
     summary = summarize(held, p)
@@ -192,8 +234,9 @@ def calibrate(rows: list, features=CONFIDENCE_FEATURES) -> tuple:
         r["p"] = float(q)
     meta = {"features": list(features), "weights": [round(float(v), 6) for v in w], "bias": round(b, 6),
             "definition": f"P(rotation within {RIGHT_DEG:g} deg modulo symmetry and centre within "
-                          f"{RIGHT_M * 100:g} cm)",
-            "fitted_on": f"{len(fit)} rendered occluded tabletop views (even test shapes); held out {len(held)}",
+                          + (f"{RIGHT_M * 100:g} cm)" if tabletop else f"{RIGHT_DIAG:g} of the bbox diagonal)"),
+            "fitted_on": f"{len(fit)} " + ("rendered occluded tabletop views" if tabletop else "ModelNet test "
+                                          "samples") + f" (even-numbered shapes); held out {len(held)}",
             "held_out": {k: round(v, 4) if isinstance(v, float) else v for k, v in summary.items()
                          if k != "reliability"}}
     return meta, summary, held
@@ -225,7 +268,8 @@ def plot_reliability(summary: dict, path, title: str) -> None:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--model", required=True)
-    ap.add_argument("--views", type=int, default=240)
+    ap.add_argument("--views", type=int, default=240, help="tabletop models: rendered views")
+    ap.add_argument("--limit", type=int, help="ModelNet models: first K test instances")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--data-root", dest="data_root")
     ap.add_argument("--rows", help="fit on the rows of an earlier --json instead of rendering again")
@@ -237,7 +281,10 @@ def main(argv=None) -> int:
     if a.rows:
         rows = json.loads(pathlib.Path(a.rows).read_text())["rows"]
     else:
-        rows = collect(PoseEstimator(a.model), a.views, a.seed, a.data_root)
+        from equipose.train.data.tabletop import TABLETOP
+        est = PoseEstimator(a.model)
+        rows = collect(est, a.views, a.seed, a.data_root) if est.category in TABLETOP else \
+            collect_modelnet(est, a.data_root, limit=a.limit)
     meta, summary, _ = calibrate(rows)
     print(f"{pathlib.Path(a.model).name}: {len(rows)} results, right {summary['right_rate']:.2f}; held out: "
           f"AUROC {summary['auroc']:.3f} (margin {summary['margin_auroc']:.3f}), ECE {summary['ece']:.3f} "
