@@ -58,8 +58,8 @@ __all__ = ["FORMAT_VERSION", "REQUIRED_KEYS", "FRAME_PRIOR_STEPS", "CONFIDENCE_F
 
 FORMAT_VERSION = 1
 FRAME_PRIOR_STEPS = ("rest", "mirror", "footprint")       # equipose.runtime.frame_priors
-CONFIDENCE_FEATURES = ("margin", "residual", "outliers", "coverage", "occlusion", "log_points", "ambiguous",
-                       "up_given", "handle_seen", "handle_share")   # equipose.runtime.stages.confidence
+CONFIDENCE_FEATURES = ("margin", "flip_margin", "residual", "outliers", "coverage", "occlusion", "log_points",
+                       "ambiguous", "up_given", "handle_seen", "handle_share")   # equipose.runtime.stages.confidence
 MAX_COPIES = 64                                            # refine_calibration copies; equipose.runtime.copies
 MAX_POLISH = 200                                           # refine_calibration polish; equipose.runtime.refine
 MAX_DENSIFY = 16                                           # refine_calibration densify; equipose.runtime.template

@@ -225,7 +225,8 @@ def calibrate(rows: list, features=CONFIDENCE_FEATURES) -> tuple:
     fit, held = split_rows(rows)
     if not fit or not held:
         raise ConfigError("confidence calibration needs views of at least two test shapes")
-    features = [f for f in features if np.ptp([r[f] for r in rows]) > 0]      # constant features carry nothing
+    features = [f for f in features if all(f in r for r in rows) and np.ptp([r[f] for r in rows]) > 0]
+    # (features a row set lacks, or that are constant, carry nothing)
     tabletop = rows[0]["prompt"] != "points"
     w, b = fit_logistic(*_matrix(fit, features))
     p = predict_logistic(_matrix(held, features)[0], w, b)

@@ -5,6 +5,7 @@ Evidence (result extra ``evidence``, every model): how well the chosen pose expl
 of the object was seen —
 
 - ``margin``: the selection's relative score margin to the best hypothesis > 30° away, as the stages left it;
+- ``flip_margin``: the same to the best turned (≥ 150°) hypothesis, or the flip stage's margin (1 when none);
 - ``residual``: mean distance from each model input point to the posed canonical shape, in shape RMS radii;
 - ``outliers``: share of input points farther than ``FAR`` RMS radii from the posed shape (occluders, background);
 - ``coverage``: share of the posed shape's points with an input point within ``FAR`` RMS radii (how much was seen);
@@ -47,8 +48,10 @@ def evidence(state: ObjectState) -> dict:
     crop = state.crop or {}
     n_crop = crop.get("inliers", len(x))
     handle = state.extras.get("handle_visible")
+    flip = state.extras.get("flip_margin", getattr(state.selection, "flip_margin", float("nan")))
     return {
         "margin": float(state.confidence),
+        "flip_margin": float(np.clip(flip, 0.0, 1.0)) if np.isfinite(flip) else 1.0,
         "residual": float(d_obs.mean() / rms),
         "outliers": float(np.mean(d_obs > FAR * rms)),
         "coverage": float(np.mean(d_shape < FAR * rms)),
