@@ -125,7 +125,10 @@ def test_dry_run_lists_the_steps(capsys):
             f"| tee docs/results/models/{f}.norefine.txt",
             f"python -m equipose.export.flip_templates --model {m} --teacher car-complete --category car --axes z "
             "--pool 24",
-            f"python -m equipose.train.fitting.turn_classifier --model {m} {turn}",
+            f"python -m equipose.train.fitting.turn_classifier --model {m} {turn}"]
+        if f == "car-partial":                                             # written into both files
+            expected.append(f"python -m equipose.train.evaluation.confidence --model {m} --views 200 --write")
+        expected += [
             f"equipose eval --model {m} --category car --mode partial --icp-samples 100 "
             f"--json docs/results/models/{f}.json --plot docs/results/models/{f}.png --store-metrics "
             f"| tee docs/results/models/{f}.txt"]
@@ -135,7 +138,8 @@ def test_dry_run_lists_the_steps(capsys):
 def test_plan_without_state_and_without_evaluation(tmp_path):
     r = load_recipe(recipe_path("chair-complete"))
     steps = plan(r, state="-", skip_eval=True)
-    assert [s.title.split(":")[0] for s in steps] == ["chair-complete"] * 3 + ["chair-complete.int8"] * 3
+    assert [s.title.split(":")[0] for s in steps] == ["chair-complete"] * 3 + ["chair-complete (and its int8 copy)"] + \
+        ["chair-complete.int8"] * 3
     assert not any("eval" in s.argv or "export" in s.argv for s in steps)
     assert steps[1].text() == "update_metadata(sdk/models/chair-complete.onnx, rest_facet={'tolerance_deg': 20.0})"
     assert steps[2].argv[-2:] == ("--steps", "footprint,mirror:x")

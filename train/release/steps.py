@@ -42,6 +42,9 @@ class Step:
         return line + (f" | tee {self.tee}" if self.tee else "")
 
 
+CONFIDENCE_VIEWS = 200          # rendered tabletop views for the confidence fit (ModelNet models use their test set)
+
+
 def _equipose(*args, title, tee=None) -> Step:
     return Step(title, ("equipose",) + tuple(str(a) for a in args), tee)
 
@@ -103,6 +106,9 @@ def _file_steps(r: Recipe, f: str, views: int, skip_eval: bool) -> list:
     if r.frame_priors is not None:
         steps.append(_python("equipose.export.frame_priors", "--model", model, "--category", r.category,
                              "--steps", r.frame_priors, title=f"{f}: frame priors ({r.frame_priors})"))
+    if f == r.name:                                                            # also written into the int8 file
+        steps.append(_python("equipose.train.evaluation.confidence", "--model", model, "--views", CONFIDENCE_VIEWS,
+                             "--write", title=f"{f} (and its int8 copy): calibrated confidence"))
     if not skip_eval:
         steps.append(_equipose("eval", "--model", model, *test, "--icp-samples", r.eval_icp_samples,
                                "--json", f"{RESULTS}/{f}.json", "--plot", f"{RESULTS}/{f}.png", "--store-metrics",
