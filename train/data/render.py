@@ -217,12 +217,37 @@ def render_frame(shape: dict, R: np.ndarray, t: np.ndarray, K: np.ndarray, size=
     return depth_to_uint16(depth)
 
 
+def occlude_patch(depth_mm: np.ndarray, mask: np.ndarray, rng: np.random.Generator) -> tuple:
+    """Put a flat occluder in front of part of the object: a rectangle over 15–60 % of the mask's box (entering from
+    a random side) at 2–10 cm before the object's nearest point. Returns (depth [H, W] uint16 mm, visible mask)."""
+    rows, cols = np.nonzero(mask)
+    if not len(rows):
+        return depth_mm, mask
+    r0, r1, c0, c1 = rows.min(), rows.max() + 1, cols.min(), cols.max() + 1
+    share = rng.uniform(0.15, 0.6)
+    side = int(rng.integers(4))                                                 # 0 bottom, 1 top, 2 left, 3 right
+    if side < 2:
+        cut = int(round((r1 - r0) * share))
+        rr, cc = ((r1 - cut, r1 + 40) if side == 0 else (r0 - 40, r0 + cut)), (c0 - 20, c1 + 20)
+    else:
+        cut = int(round((c1 - c0) * share))
+        rr, cc = (r0 - 20, r1 + 20), ((c0 - 40, c0 + cut) if side == 2 else (c1 - cut, c1 + 40))
+    patch = np.zeros_like(mask)
+    patch[max(rr[0], 0):max(rr[1], 0), max(cc[0], 0):max(cc[1], 0)] = True
+    near = int(depth_mm[mask].min()) - int(rng.uniform(20, 100))
+    out = depth_mm.copy()
+    out[patch] = max(near, 1)
+    return out, mask & ~patch
+
+
 def render_views(shape: dict, rng: np.random.Generator, views: int, settings: RenderSettings,
-                 radius: float = 1.0) -> list:
+                 radius: float = 1.0, sensor=None, occluder: float = 0.0) -> list:
     """Render ``views`` random views and back-project each through ``equipose.preprocess.crop_points`` with the mask.
 
-    Returns [(points [P, 3] float32 metres camera frame, R, t)]; views whose crop fails (object out of frame, too
-    few points) are re-drawn (up to 5 tries each).
+    ``sensor``: an ``equipose.train.data.sensor.SensorModel`` applied to each frame (None: clean depth);
+    ``occluder``: the chance of an occluder in front of part of the object (``occlude_patch``; the mask keeps the
+    visible part). Returns [(points [P, 3] float32 metres camera frame, R, t)]; views whose crop fails (object out of
+    frame, too few points) are re-drawn (up to 5 tries each).
     """
     K = camera_matrix(settings.width, settings.height, settings.fov_y_deg)
     size = (settings.width, settings.height)
@@ -231,6 +256,13 @@ def render_views(shape: dict, rng: np.random.Generator, views: int, settings: Re
         for _try in range(5):
             R, t = sample_pose(rng, settings, radius)
             depth, mask = render_frame(shape, R, t, K, size)
+            if occluder and rng.random() < occluder:
+                depth, mask = occlude_patch(depth, mask, rng)
+            if sensor is not None:
+                from equipose.train.data.sensor import apply_sensor
+                noisy = apply_sensor(np.where(depth > 0, depth / 1000.0, np.inf), rng, sensor)   # [H, W] m
+                depth = np.round(noisy * 1000.0).astype(np.uint16)
+                mask = mask & (depth > 0)
             try:
                 crop = crop_points(depth, K, mask=mask, depth_unit="mm", max_points=settings.crop_max_points)
             except EquiposeError:

@@ -86,7 +86,7 @@ def _render_instance(job) -> list:
 
 def ensure_cache(root, category: str, split: str, cache_dir=None, limit: int | None = None, views: int = 10,
                  source: str = "npy1024", seed: int = 0, settings: RenderSettings | None = None,
-                 progress: bool = True, log=print, workers: int | None = None) -> pathlib.Path:
+                 progress: bool = True, log=print, workers: int | None = None, sensor: bool = False) -> pathlib.Path:
     """Render (once) and cache the partial views of a ModelNet category split (tabletop categories: see
     ``equipose.train.data.tabletop``); returns the ``.npz`` path.
 
@@ -100,7 +100,9 @@ def ensure_cache(root, category: str, split: str, cache_dir=None, limit: int | N
             raise ConfigError(f"tabletop category {category!r} renders with its own camera settings and sources "
                               "(equipose.train.data.tabletop); do not pass settings/source")
         return ensure_tabletop_cache(root, category, split, cache_dir=cache_dir, views=views, seed=seed,
-                                     progress=progress, log=log, limit=limit)
+                                     progress=progress, log=log, limit=limit, sensor=sensor)
+    if sensor:
+        raise ConfigError("the depth-sensor model renders tabletop categories only (cup, mug, bowl, can)")
     settings = settings or RenderSettings(distance=CATEGORY_DISTANCE.get(category, 2.0))
     key, path = keyed_cache_path(cache_dir, f"partial_{category}_{split}_{source}_v{views}",
                                  {"category": category, "split": split, "limit": limit, "views": views,

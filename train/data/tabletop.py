@@ -65,6 +65,7 @@ TABLETOP = {
                         cylinders=150, notes="cylindrical cans and bottles; the axis sign is not defined"),
 }
 
+SENSOR_OCCLUDER = 0.5       # share of sensor-model training views with an occluder in front of part of the object
 _UP = {"none": np.eye(3), "y_up": np.array([[1.0, 0, 0], [0, 0, -1.0], [0, 1.0, 0]])}   # y → z
 
 
@@ -152,22 +153,26 @@ def _spec_key(spec: TabletopSpec, split: str) -> dict:
 
 def ensure_tabletop_cache(root, category: str, split: str, cache_dir=None, views: int = 10, seed: int = 0,
                           distance_m: tuple = (0.5, 1.4), lateral: float = 0.12, progress: bool = True,
-                          log=print, limit: int | None = None) -> pathlib.Path:
+                          log=print, limit: int | None = None, sensor: bool = False) -> pathlib.Path:
     """Render (once) the partial views of a tabletop category split into a ``RenderedPartial`` cache; returns its path.
 
     ``views`` per ModelNet instance (8× that per metric mesh / scan in train). Seeded per source: view k of source i
-    depends only on (seed, split, i). ``limit`` keeps the first K sources (tests, smoke runs).
+    depends only on (seed, split, i). ``limit`` keeps the first K sources (tests, smoke runs). ``sensor``: every frame
+    through the depth-sensor model (``equipose.train.data.sensor``) and half of them with an occluder in front of part
+    of the object (``render.occlude_patch``): what a real tabletop camera sees.
     """
     from tqdm import tqdm
     from equipose.train.data.cache_io import keyed_cache_path, write_partial_cache
     from equipose.train.data.render import RenderSettings, render_views
+    from equipose.train.data.sensor import SensorModel
     spec = TABLETOP.get(category)
     if spec is None:
         raise ConfigError(f"{category!r} is not a tabletop category ({', '.join(TABLETOP)})")
     key, path = keyed_cache_path(cache_dir, f"tabletop_{category}_{split}_v{views}",
                                  {"tabletop": category, "split": split, "views": views, "seed": seed,
                                   "distance_m": list(distance_m), "lateral": lateral, "limit": limit,
-                                  "spec": _spec_key(spec, split), "settings": asdict(RenderSettings()), "v": 1})
+                                  "spec": _spec_key(spec, split), "settings": asdict(RenderSettings()), "v": 1}
+                                 | ({"sensor": asdict(SensorModel()), "occluder": SENSOR_OCCLUDER} if sensor else {}))
     if path.is_file():
         return path
     sources = tabletop_sources(root, category, split, seed)[:limit]
@@ -183,7 +188,9 @@ def ensure_tabletop_cache(root, category: str, split: str, cache_dir=None, views
             d = float(rng.uniform(*distance_m))
             var = (lateral * d / radius) ** 2
             settings = RenderSettings(distance=d / radius, offset_var=(var, var, (0.05 / radius) ** 2))
-            for p, R, t in render_views(shape, rng, 1, settings, radius=radius):
+            for p, R, t in render_views(shape, rng, 1, settings, radius=radius,
+                                        sensor=SensorModel() if sensor else None,
+                                        occluder=SENSOR_OCCLUDER if sensor else 0.0):
                 pts.append(p)
                 Rs.append(R)
                 ts.append(t)

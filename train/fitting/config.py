@@ -44,6 +44,9 @@ class TrainConfig:
     views: int = _opt(10, "partial: rendered views per training instance")
     test_views: int = _opt(5, "partial: rendered views per test instance")
     cache_dir: str = _opt("", "partial: render cache folder (default data_cache/)")
+    sensor: bool = _opt(False, "partial, tabletop categories: training views through a depth-sensor model (noise "
+                               "growing with z², flying pixels and holes at edges, quantisation) with an occluder "
+                               "in front of part of the object in half of them (validation views stay clean)")
     device: str = _opt("", "cpu | cuda | cuda:K (default: cuda when present, else cpu)")
     init: str = _opt("", "warm start from this checkpoint's weights (same preset and mode; fresh optimiser, step 0), "
                          "e.g. a trained related category; ignored on --resume")

@@ -43,6 +43,8 @@ def _dist_info() -> tuple:
 
 
 def _render_opts(cfg: TrainConfig, split: str) -> dict:
+    if split == "train" and cfg.sensor:
+        return {"views": cfg.views, "sensor": True}
     return {"views": cfg.views if split == "train" else cfg.test_views}
 
 
