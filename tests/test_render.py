@@ -148,3 +148,40 @@ def test_partial_cache_renders_the_same_views_on_several_workers(data_root, tmp_
     from equipose.core.errors import ConfigError
     with pytest.raises(ConfigError, match="workers"):
         ensure_cache(data_root, "bottle", "test", cache_dir=tmp_path / "three", limit=3, views=2, workers=0)
+
+
+def test_sensor_model_noise_grows_with_depth_and_leaves_holes_at_edges():
+    from equipose.train.data.sensor import SensorModel, apply_sensor
+    rng = np.random.default_rng(0)
+    d = np.full((120, 160), np.inf)
+    d[:, :80], d[:, 80:] = 0.6, 1.4                                             # a step at column 80
+    out = apply_sensor(d, rng, SensorModel(dropout=0.0))
+    assert np.all(np.abs(np.round(out / 0.001) * 0.001 - out) < 1e-9)          # quantised to 1 mm
+    near, far = out[:, 5:70], out[:, 90:155]
+    assert 2.0 * near[near > 0].std() < far[far > 0].std()                    # σ grows with z²
+    edge = out[:, 79:81]
+    assert np.mean(edge == 0) > 0.1                                             # holes at the jump
+    flying = edge[(edge > 0.65) & (edge < 1.35)]
+    assert len(flying) > 0                                                      # and depths between the surfaces
+    assert np.all(apply_sensor(np.full((4, 4), np.inf), rng) == 0)              # nothing stays nothing
+
+
+def test_occluded_view_hides_part_of_the_object_and_counts_a_part():
+    from equipose.train.data.occluded import render_occluded
+    from equipose.train.data.render import surfels_from_points
+    rng = np.random.default_rng(3)
+    p = rng.normal(size=(3000, 3))
+    p = 0.05 * p / np.linalg.norm(p, axis=1, keepdims=True)                     # a 5 cm sphere
+    p[:, 2] += 0.05
+    n, r = surfels_from_points(p)
+    shape = {"points": p, "normals": n, "radii": r}
+    views = [render_occluded(shape, np.random.default_rng([1, k]), occluder=1.0, part=p[:, 0] > 0.03)
+             for k in range(12)]
+    assert all(v is not None for v in views)
+    assert max(v.occluded for v in views) > 0.02                               # the panel hides part of it
+    for v in views:
+        assert not np.any(v.mask & ~v.full_mask) and v.mask.sum() >= 150
+        x, y, w, h = v.box
+        rows, cols = np.nonzero(v.mask)
+        assert rows.min() == y and cols.min() == x and rows.max() == y + h - 1 and cols.max() == x + w - 1
+    assert any(v.part_pixels > 0 for v in views)
