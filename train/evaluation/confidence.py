@@ -8,7 +8,8 @@ Each view runs through ``PoseEstimator.predict`` four times: box prompt (the vis
 detector gives it) and mask prompt, each without and with the up prior "plane". A pose is *right* when its rotation
 is within 10° of the truth modulo the model's symmetry (mugs: full 6D; cans: unsigned axis) and its centre within
 2 cm. The logistic model σ(bias + Σ wᵢ·featureᵢ) over ``equipose.runtime.stages.confidence``'s evidence is fitted on
-the views of even-numbered test shapes and measured on the odd-numbered ones (shape-disjoint); ``--write`` stores
+the views of even-numbered test shapes (its features chosen there by shape-grouped cross-validation: the selection
+margin alone, both margins, or all) and measured on the odd-numbered ones (shape-disjoint); ``--write`` stores
 the fitted model (and its held-out figures) as ``confidence_calibration`` in the model file and its int8 sibling.
 ModelNet models (car, chair, ...) are fitted on their paper test set instead (``collect_modelnet``).
 
@@ -141,15 +142,24 @@ def collect_modelnet(model, data_root=None, cache_dir=None, limit: int | None = 
     return rows
 
 
+MONOTONE = ("margin", "flip_margin")      # a larger margin never lowers the confidence
+
+
+def _fit(rows: list, features) -> tuple:
+    """``fit_logistic`` of ``rows`` on ``features`` with the ``MONOTONE`` ones kept non-negative."""
+    return fit_logistic(*_matrix(rows, features), nonnegative=[j for j, f in enumerate(features) if f in MONOTONE])
+
+
 def _matrix(rows: list, features) -> tuple:
     X = np.array([[row[f] for f in features] for row in rows], np.float64)     # [n, F]
     y = np.array([row["right"] for row in rows], np.float64)                   # [n]
     return X, y
 
 
-def fit_logistic(X: np.ndarray, y: np.ndarray, l2: float = L2) -> tuple:
+def fit_logistic(X: np.ndarray, y: np.ndarray, l2: float = L2, nonnegative=()) -> tuple:
     """Ridge logistic regression. Convention: X [n, F], y [n] in {0, 1} → (weights [F], bias) on the raw features
-    (fitted on standardised ones, so the ridge treats every feature alike)."""
+    (fitted on standardised ones, so the ridge treats every feature alike); the weights of the columns in
+    ``nonnegative`` stay ≥ 0 (evidence that can only speak for the pose, such as a margin)."""
     if X.ndim != 2 or len(X) != len(y) or len(np.unique(y)) < 2:
         raise ConfigError(f"logistic fit needs X [n, F] and both outcomes in y; got {X.shape}, {np.unique(y)}")
     mu, sd = X.mean(0), X.std(0)
@@ -163,7 +173,8 @@ def fit_logistic(X: np.ndarray, y: np.ndarray, l2: float = L2) -> tuple:
         q = 1.0 / (1.0 + np.exp(-z)) - y                                       # dNLL/dz
         return nll + l2 * w @ w, np.append(Z.T @ q / len(y) + 2 * l2 * w, q.mean())
 
-    p = minimize(loss, np.zeros(X.shape[1] + 1), jac=True, method="L-BFGS-B").x
+    bounds = [(0.0, None) if j in nonnegative else (None, None) for j in range(X.shape[1])] + [(None, None)]
+    p = minimize(loss, np.zeros(X.shape[1] + 1), jac=True, method="L-BFGS-B", bounds=bounds).x
     w = p[:-1] / sd
     return w, float(p[-1] - w @ mu)
 
@@ -220,15 +231,41 @@ def split_rows(rows: list) -> tuple:
     return [r for r in rows if r["shape"] % 2 == 0], [r for r in rows if r["shape"] % 2 == 1]
 
 
+def grouped_log_loss(rows: list, features, folds: int = 5) -> float:
+    """Mean held-out log loss of the logistic model on ``features`` over ``folds`` folds of whole shapes."""
+    shapes = np.array([r["shape"] for r in rows])
+    X, y = _matrix(rows, features)
+    losses = []
+    for k in range(folds):
+        out = shapes % folds == k
+        if not out.any() or out.all() or len(np.unique(y[~out])) < 2:
+            continue
+        w, b = fit_logistic(X[~out], y[~out], nonnegative=[j for j, f in enumerate(features) if f in MONOTONE])
+        p = np.clip(predict_logistic(X[out], w, b), 1e-6, 1 - 1e-6)
+        losses.append(-np.mean(y[out] * np.log(p) + (1 - y[out]) * np.log(1 - p)))
+    return float(np.mean(losses)) if losses else float("inf")
+
+
+def choose_features(rows: list, features) -> list:
+    """The feature set (the selection margin alone, the margins, or every feature) with the lowest shape-grouped
+    cross-validated log loss on ``rows``: with few wrong results the full model overfits."""
+    margins = [f for f in ("margin", "flip_margin") if f in features]
+    sets = [features[:1] if not margins else margins[:1], margins, list(features)]
+    sets = [list(c) for i, c in enumerate(sets) if c and c not in sets[:i]]
+    return min(sets, key=lambda c: grouped_log_loss(rows, c))
+
+
 def calibrate(rows: list, features=CONFIDENCE_FEATURES) -> tuple:
-    """(metadata dict for ``confidence_calibration``, held-out summary, held-out rows with "p")."""
+    """(metadata dict for ``confidence_calibration``, held-out summary, held-out rows with "p"). The features are
+    chosen on the fit rows alone (``choose_features``)."""
     fit, held = split_rows(rows)
     if not fit or not held:
         raise ConfigError("confidence calibration needs views of at least two test shapes")
     features = [f for f in features if all(f in r for r in rows) and np.ptp([r[f] for r in rows]) > 0]
     # (features a row set lacks, or that are constant, carry nothing)
+    features = choose_features(fit, features)
     tabletop = rows[0]["prompt"] != "points"
-    w, b = fit_logistic(*_matrix(fit, features))
+    w, b = _fit(fit, features)
     p = predict_logistic(_matrix(held, features)[0], w, b)
     summary = summarize(held, p)
     for r, q in zip(held, p):
