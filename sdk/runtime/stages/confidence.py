@@ -83,6 +83,8 @@ class ConfidenceStage(Stage):
         return {"calibrated": c is not None} | ({} if c is None else {"features": list(c["features"])})
 
     def run(self, state: ObjectState) -> None:
+        if state.rotation is None:                                              # no pose chosen: nothing to judge
+            return
         ev = evidence(state)
         state.extras["evidence"] = {k: round(v, 6) for k, v in ev.items()}
         c = self.calibration
