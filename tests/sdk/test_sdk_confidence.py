@@ -91,3 +91,13 @@ def test_logistic_fit_auroc_and_reliability():
     assert auroc(np.full(4, 0.5), np.array([0, 1, 0, 1])) == 0.5
     with pytest.raises(errors.ConfigError):
         fit_logistic(X, np.ones(2000))
+
+
+def test_every_shipped_model_carries_a_calibrated_confidence():
+    from equipose.models import list_models
+    for path in list_models():
+        meta = decode_metadata(read_metadata_props(path))
+        cal = meta["confidence_calibration"]
+        assert cal is not None, f"{path.name} has no confidence_calibration (run its release recipe)"
+        assert "margin" in cal["features"] and cal["weights"][cal["features"].index("margin")] >= 0
+        assert 0.0 <= cal["held_out"]["auroc"] <= 1.0 and cal["held_out"]["n"] > 0
