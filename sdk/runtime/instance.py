@@ -25,11 +25,15 @@ from equipose.core.errors import ConfigError
 from equipose.core.geometry import farthest_point_order
 from equipose.preprocess import check_points, prepare_points
 
-__all__ = ["InstanceModel", "build_instance_model", "INSTANCE_ITERS"]
+__all__ = ["InstanceModel", "build_instance_model", "INSTANCE_ITERS", "undecided_turn"]
 
 TEMPLATE_POINTS = 1024          # model points kept (FPS) for ICP
 COARSE_ITERS = 3                # ICP steps for every hypothesis before the k best are refined
 INSTANCE_ITERS = 50             # ICP iterations of the k best (default of PoseEstimator(instance_iters=...))
+TURN_ANGLES_DEG = (60.0, 120.0, 180.0, 240.0, 300.0)   # turns of the chosen pose tried about each principal axis
+TURN_ITERS = 6                  # ICP steps of each turned start
+TURN_TEMPLATE_POINTS = 256      # template points of the turn test (a dense product instead of a k-d tree)
+TURN_MIN_DEG = 30.0             # a turned start that ends closer than this to the chosen pose slid back to it
 
 
 @dataclass
@@ -64,3 +68,31 @@ def build_instance_model(est, model_points, *, k: int = 10, iters: int = INSTANC
     A, b = R_c.T, -R_c.T @ (prep.centre_m / est.scale + t_c)
     sub = q[farthest_point_order(q.astype(np.float32), min(TEMPLATE_POINTS, len(q)))]  # [M', 3] m
     return InstanceModel(points_m=q, template=sub / est.scale @ A.T + b, A=A, b=b, k=k, iters=iters)
+
+
+def undecided_turn(points: np.ndarray, template: np.ndarray, R: np.ndarray, t: np.ndarray, margin: float) -> bool:
+    """Whether a turn of the chosen pose about one of the template's principal axes fits the view about as well.
+
+    Convention: ``points`` [N, 3] the observation, ``template`` [M, 3] FPS-ordered, both model units; (``R`` [3, 3],
+    ``t`` [3]) the chosen pose (template → observation). Residuals (mean squared observed → template distance) are
+    taken on the template's first ``TURN_TEMPLATE_POINTS`` points. Each turn of ``TURN_ANGLES_DEG`` about each principal axis through the template's centroid gets ``TURN_ITERS`` ICP
+    steps; True when one ends more than ``TURN_MIN_DEG`` from the pose and within ``margin`` of its residual,
+    (r − residual) / r < margin — the view cannot tell the turn from the pose (a symmetry axis, or the side that would
+    tell is hidden).
+    """
+    from scipy.spatial.transform import Rotation
+
+    from equipose.core.icp import icp_multi
+    template = template[:TURN_TEMPLATE_POINTS]                                  # FPS prefix: an even subsample
+    _, _, base = icp_multi(points, template, R[None], t[None], iters=0)        # the pose's residual on it
+    residual = float(base[0])
+    c = template.mean(0)                                                        # [3]
+    _, _, axes = np.linalg.svd(template - c, full_matrices=False)               # [3, 3] rows: principal axes
+    turns = Rotation.from_rotvec(np.concatenate([np.radians(TURN_ANGLES_DEG)[:, None] * a[None] for a in axes]))
+    Rs = R @ turns.as_matrix()                                                  # [T, 3, 3] turned about c
+    ts = t + R @ c - np.einsum("kij,j->ki", Rs, c)                              # [T, 3] c stays where it was
+    Rf, _, res = icp_multi(points, template, Rs, ts, iters=TURN_ITERS)
+    rel = (res - residual) / np.maximum(res, 1e-12)                             # [T]
+    cos = (np.einsum("kij,ij->k", Rf, R) - 1.0) / 2.0                           # [T] cos of the angle to the pose
+    away = cos < np.cos(np.radians(TURN_MIN_DEG))                               # did not slide back to the pose
+    return bool(np.any((rel < margin) & away))

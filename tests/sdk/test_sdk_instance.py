@@ -34,3 +34,27 @@ def test_instance_mode_bad_arguments(tiny_model, drill):
         PoseEstimator(tiny_model, model_points=np.tile(drill[:1], (100, 1)))
     with pytest.raises(errors.ConfigError):
         PoseEstimator(tiny_model, model_points=drill, instance_k=0)
+
+
+def _open_prism(n: int, seed: int) -> np.ndarray:
+    """Points of an open triangular box (three walls + bottom, no lid), metres: a turn of 120° about z fits, upside
+    down and a half turn do not."""
+    g = np.random.default_rng(seed)
+    corners = 0.05 * np.array([[np.cos(a), np.sin(a)] for a in np.radians([90.0, 210.0, 330.0])])   # [3, 2]
+    side, u, z = g.integers(0, 3, 3 * n // 4), g.uniform(0, 1, 3 * n // 4), g.uniform(0.0, 0.1, 3 * n // 4)
+    wall = corners[side] + u[:, None] * (corners[(side + 1) % 3] - corners[side])
+    w = g.dirichlet(np.ones(3), n // 4)                                         # uniform on the bottom triangle
+    return np.r_[np.c_[wall, z], np.c_[w @ corners, np.zeros(n // 4)]]
+
+
+def test_instance_mode_flags_a_turn_the_view_cannot_decide(tiny_model, drill):
+    rng = np.random.default_rng(5)
+    R = Rotation.random(random_state=rng).as_matrix()
+    t = np.array([0.02, -0.03, 0.7])
+    est = PoseEstimator(tiny_model, threads=1, model_points=_open_prism(2000, 0))
+    obs = _open_prism(2000, 1) @ R.T + t + rng.normal(scale=0.001, size=(2000, 3))   # another sampling of it
+    r = est.predict_points(obs)
+    assert r.ambiguous and abs(r.rotation[:, 2] @ R[:, 2]) > 0.99               # the axis is known, the turn is not
+    est = PoseEstimator(tiny_model, threads=1, model_points=drill)
+    r = est.predict_points(drill @ R.T + t + rng.normal(scale=0.001, size=drill.shape))
+    assert _angle(r.rotation, R) < 1.0 and not r.ambiguous

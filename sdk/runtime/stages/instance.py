@@ -1,6 +1,8 @@
 """Stage ``instance`` (instance-level mode, ``PoseEstimator(model_points=...)``): the object's own model points take
 the place of the predicted shape (``equipose.runtime.instance``): every hypothesis gets a few ICP steps against them,
-the ``k`` best go on to convergence, and the winner is composed back into the CAD frame.
+the ``k`` best go on to convergence, and the winner is composed back into the CAD frame. ``ambiguous`` also when a
+turn of the winner about one of the model's principal axes fits within the flip margin (10 %) after a few ICP steps
+(``equipose.runtime.instance.undecided_turn``): a turn about a symmetry axis that the view cannot decide.
 
 Convention: model units, centred camera frame; the result is the CAD model's pose (camera ← CAD), no symmetry.
 """
@@ -8,8 +10,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from equipose.runtime.hypotheses import select_hypothesis
-from equipose.runtime.instance import COARSE_ITERS
+from equipose.runtime.hypotheses import AMBIGUOUS_MARGIN, select_hypothesis
+from equipose.runtime.instance import COARSE_ITERS, undecided_turn
 from equipose.runtime.refine import refine_hypotheses
 from equipose.runtime.stage import ObjectState, Stage, register_stage
 
@@ -42,6 +44,9 @@ class InstanceStage(Stage):
         t_obj = np.einsum("aij,j->ai", R, inst.b) + t                           # [60, 3] model units
         sel = select_hypothesis(R_obj, t_obj, s, symmetry="none", top_k=state.top_k, prefer=state.prefer,
                                 prefer_margin=state.prefer_margin)
+        # a turn of the chosen pose that fits almost as well (e.g. about a symmetry axis the view cannot decide)
+        sel.ambiguous = bool(sel.ambiguous or undecided_turn(state.points, inst.template, R[sel.index],
+                                                             t[sel.index], AMBIGUOUS_MARGIN))
         U, _, Vt = np.linalg.svd(R_obj[sel.index])
         state.R, state.t, state.scores, state.symmetry = R_obj, t_obj, s, "none"
         state.selection, state.confidence, state.ambiguous = sel, sel.confidence, sel.ambiguous
