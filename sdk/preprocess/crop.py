@@ -20,7 +20,7 @@ from equipose.preprocess.sampling import MIN_POINTS
 from equipose.preprocess.validate import check_box, check_intrinsics, check_mask, depth_to_metres
 
 __all__ = ["CropResult", "check_crop_options", "crop_points", "statistical_outlier_mask", "organized_outlier_mask",
-           "nearest_depth_cluster", "depth_clusters", "surface_segments", "box_object_cluster"]
+           "nearest_depth_cluster", "depth_clusters", "surface_segments", "box_object_cluster", "occluded_fraction"]
 
 
 @dataclass
@@ -256,11 +256,12 @@ def box_object_cluster(z: np.ndarray, rows: np.ndarray, cols: np.ndarray, box, m
     else:
         cands = [(labels == seg, None) for seg in big]
     cx, cy, hw, hh = (x0 + x1) / 2.0, (y0 + y1) / 2.0, max((x1 - x0) / 2.0, 1.0), max((y1 - y0) / 2.0, 1.0)
-    band = ((cols - x0) < border * 2 * hw) | ((x1 - 1 - cols) < border * 2 * hw) | \
-        ((rows - y0) < border * 2 * hh) | ((y1 - 1 - rows) < border * 2 * hh)    # [P] in the border band
     sides = np.stack([cols - x0 < 2 * border * hw, x1 - 1 - cols < 2 * border * hw,
                       rows - y0 < 2 * border * hh, y1 - 1 - rows < 2 * border * hh])   # [4, P] near each side
-    enclosing = np.all([np.bincount(labels, weights=side, minlength=len(counts)) > 0 for side in sides], 0)   # [C]
+    if grow:                                # surfaces reaching every side of the box: background all round
+        enclosing = np.all([np.bincount(labels, weights=side, minlength=len(counts)) > 0 for side in sides], 0)
+    else:
+        band = sides.any(0)                                                     # [P] in the border band
     scores = []
     for members, jumps in cands:
         n = int(members.sum())
@@ -279,9 +280,12 @@ def box_object_cluster(z: np.ndarray, rows: np.ndarray, cols: np.ndarray, box, m
         front = int(counts[: int(big[best])].sum())
     else:
         front = int(sum(counts[seg] for seg, jump in jumps.items() if jump < 0.0))
-    info = {"clusters": int(len(big)), "front_points": front,
-            "occluded_fraction": round(front / max(front + int(keep.sum()), 1), 4)}
-    return keep, info
+    return keep, {"clusters": int(len(big)), "front_points": front, "occluded_fraction": occluded_fraction(front, keep)}
+
+
+def occluded_fraction(front: int, kept: np.ndarray) -> float:
+    """Share of an object's view taken by ``front`` points in front of it: front / (front + its ``kept`` [P] bool)."""
+    return round(front / max(front + int(np.count_nonzero(kept)), 1), 4)
 
 
 # ----------------------------------------------------------------------------------------------------------------------
@@ -425,7 +429,7 @@ def crop_points(depth, K, *, box=None, mask=None, depth_unit="mm", image_size=No
                 keep[sub[inner]] = True
                 front = info["front_points"] + info2["front_points"]
                 info = {"clusters": info["clusters"], "surfaces": info2["clusters"], "front_points": front,
-                        "occluded_fraction": round(front / max(front + int(keep.sum()), 1), 4)}
+                        "occluded_fraction": occluded_fraction(front, keep)}
             diag.update(info)
         else:
             keep = nearest_depth_cluster(z)                                     # [P]

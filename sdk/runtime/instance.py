@@ -75,8 +75,8 @@ def undecided_turn(points: np.ndarray, template: np.ndarray, R: np.ndarray, t: n
 
     Convention: ``points`` [N, 3] the observation, ``template`` [M, 3] FPS-ordered, both model units; (``R`` [3, 3],
     ``t`` [3]) the chosen pose (template → observation). Residuals (mean squared observed → template distance) are
-    taken on the template's first ``TURN_TEMPLATE_POINTS`` points. Each turn of ``TURN_ANGLES_DEG`` about each principal axis through the template's centroid gets ``TURN_ITERS`` ICP
-    steps; True when one ends more than ``TURN_MIN_DEG`` from the pose and within ``margin`` of its residual,
+    taken on the template's first ``TURN_TEMPLATE_POINTS`` points. Each turn of ``TURN_ANGLES_DEG`` about each
+    principal axis through the template's centroid gets ``TURN_ITERS`` ICP steps; True when one ends more than ``TURN_MIN_DEG`` from the pose and within ``margin`` of its residual,
     (r − residual) / r < margin — the view cannot tell the turn from the pose (a symmetry axis, or the side that would
     tell is hidden).
     """

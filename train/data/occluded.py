@@ -17,6 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from equipose.eval.datasets.frames import mask_box
 from equipose.train.data.render import camera_matrix, depth_to_uint16, splat_surfels
 from equipose.train.data.scene import look_at_pose, table_surfels
 from equipose.train.data.sensor import SensorModel, apply_sensor
@@ -52,13 +53,6 @@ def panel_surfels(centre: np.ndarray, right: np.ndarray, width: float, height: f
     pts = centre + uu.reshape(-1, 1) * right + vv.reshape(-1, 1) * np.array([0.0, 0.0, 1.0])   # [P, 3]
     normal = np.cross(right, [0.0, 0.0, 1.0])
     return {"points": pts, "normals": np.tile(normal, (len(pts), 1)), "radii": np.full(len(pts), 0.75 * spacing)}
-
-
-def _box(mask: np.ndarray):
-    rows, cols = np.nonzero(mask)
-    if not len(rows):
-        return None
-    return (int(cols.min()), int(rows.min()), int(cols.max() - cols.min() + 1), int(rows.max() - rows.min() + 1))
 
 
 def render_occluded(shape: dict, rng: np.random.Generator, *, distance_m=(0.5, 1.2), occluder: float = 0.7,
@@ -109,6 +103,6 @@ def render_occluded(shape: dict, rng: np.random.Generator, *, distance_m=(0.5, 1
             d = apply_sensor(d, rng, sensor)
         depth, _ = depth_to_uint16(np.where(d > 0, d, np.inf))
         mask = mask & (depth > 0)
-        return OccludedView(depth=depth, mask=mask, full_mask=full, box=_box(mask), K=K, R=R, t=t,
+        return OccludedView(depth=depth, mask=mask, full_mask=full, box=mask_box(mask), K=K, R=R, t=t,
                             occluded=1.0 - n_vis / max(n_full, 1), up=R[:, 2].copy(), part_pixels=part_px)
     return None

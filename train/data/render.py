@@ -30,6 +30,7 @@ from scipy.spatial import cKDTree
 from equipose.preprocess import crop_points
 from equipose.core.errors import EquiposeError
 from equipose.core.geometry import random_rotations
+from equipose.train.data.sensor import apply_sensor
 
 __all__ = ["camera_matrix", "rasterize_mesh", "splat_surfels", "surfels_from_points", "depth_to_uint16",
            "RenderSettings", "sample_pose", "render_frame", "render_views", "ensure_cache", "CATEGORY_DISTANCE",
@@ -259,7 +260,6 @@ def render_views(shape: dict, rng: np.random.Generator, views: int, settings: Re
             if occluder and rng.random() < occluder:
                 depth, mask = occlude_patch(depth, mask, rng)
             if sensor is not None:
-                from equipose.train.data.sensor import apply_sensor
                 noisy = apply_sensor(np.where(depth > 0, depth / 1000.0, np.inf), rng, sensor)   # [H, W] m
                 depth = np.round(noisy * 1000.0).astype(np.uint16)
                 mask = mask & (depth > 0)

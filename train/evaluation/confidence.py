@@ -30,6 +30,7 @@ from scipy.stats import rankdata
 
 from equipose.core.errors import ConfigError, EquiposeError
 from equipose.core.metadata import CONFIDENCE_FEATURES
+from equipose.runtime.stages.confidence import logistic
 
 __all__ = ["RIGHT_DEG", "RIGHT_M", "RIGHT_DIAG", "collect", "collect_modelnet", "fit_logistic", "auroc", "reliability", "summarize", "main"]
 
@@ -145,9 +146,14 @@ def collect_modelnet(model, data_root=None, cache_dir=None, limit: int | None = 
 MONOTONE = ("margin", "flip_margin")      # a larger margin never lowers the confidence
 
 
+def _monotone(features) -> list:
+    """Column indices of the ``MONOTONE`` features among ``features``."""
+    return [j for j, f in enumerate(features) if f in MONOTONE]
+
+
 def _fit(rows: list, features) -> tuple:
     """``fit_logistic`` of ``rows`` on ``features`` with the ``MONOTONE`` ones kept non-negative."""
-    return fit_logistic(*_matrix(rows, features), nonnegative=[j for j, f in enumerate(features) if f in MONOTONE])
+    return fit_logistic(*_matrix(rows, features), nonnegative=_monotone(features))
 
 
 def _matrix(rows: list, features) -> tuple:
@@ -180,8 +186,8 @@ def fit_logistic(X: np.ndarray, y: np.ndarray, l2: float = L2, nonnegative=()) -
 
 
 def predict_logistic(X: np.ndarray, w: np.ndarray, b: float) -> np.ndarray:
-    """[n] σ(b + X·w)."""
-    return 1.0 / (1.0 + np.exp(-np.clip(X @ w + b, -60.0, 60.0)))
+    """[n] σ(b + X·w), the SDK's ``logistic``."""
+    return logistic(X @ w + b)
 
 
 def auroc(score: np.ndarray, y: np.ndarray) -> float:
@@ -240,7 +246,7 @@ def grouped_log_loss(rows: list, features, folds: int = 5) -> float:
         out = shapes % folds == k
         if not out.any() or out.all() or len(np.unique(y[~out])) < 2:
             continue
-        w, b = fit_logistic(X[~out], y[~out], nonnegative=[j for j, f in enumerate(features) if f in MONOTONE])
+        w, b = fit_logistic(X[~out], y[~out], nonnegative=_monotone(features))
         p = np.clip(predict_logistic(X[out], w, b), 1e-6, 1 - 1e-6)
         losses.append(-np.mean(y[out] * np.log(p) + (1 - y[out]) * np.log(1 - p)))
     return float(np.mean(losses)) if losses else float("inf")

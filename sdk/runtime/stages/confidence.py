@@ -28,9 +28,14 @@ import numpy as np
 
 from equipose.runtime.stage import ObjectState, Stage, register_stage
 
-__all__ = ["ConfidenceStage", "FAR", "evidence"]
+__all__ = ["ConfidenceStage", "FAR", "evidence", "logistic"]
 
 FAR = 0.25          # RMS radii: a point farther than this from the other set is unexplained / unseen
+
+
+def logistic(z):
+    """σ(z) = 1 / (1 + e^−z), z clipped to ±60 (scalar or array)."""
+    return 1.0 / (1.0 + np.exp(-np.clip(z, -60.0, 60.0)))
 
 
 def evidence(state: ObjectState) -> dict:
@@ -91,4 +96,4 @@ class ConfidenceStage(Stage):
         if c is None:
             return
         z = c["bias"] + float(np.dot(c["weights"], [ev[f] for f in c["features"]]))
-        state.confidence = float(1.0 / (1.0 + math.exp(-min(max(z, -60.0), 60.0))))
+        state.confidence = float(logistic(z))
