@@ -1,4 +1,4 @@
-"""Geometry helpers shared by the SDK, training and evaluation (numpy + scipy; no torch).
+"""Geometry helpers shared by the SDK, training and evaluation (numpy + scipy, numba loops; no torch).
 
 Convention (one for the whole project):
     Points are row arrays ``[..., N, 3]``; rotation matrices act on column vectors: ``x_cam = R @ x_obj + t``, i.e.
@@ -8,6 +8,7 @@ Convention (one for the whole project):
 from __future__ import annotations
 
 import numpy as np
+from numba import njit
 from scipy.spatial.transform import Rotation
 
 __all__ = ["quaternion_to_matrix", "matrix_to_quaternion", "rotation_angle_deg", "axis_angle_deg", "backproject",
@@ -64,63 +65,65 @@ def backproject(depth_m: np.ndarray, K: np.ndarray, mask: np.ndarray | None = No
     return np.stack([x, y, z], 1).astype(np.float32), np.stack([rows, cols], 1)
 
 
-def _distance_tables(points: np.ndarray, caller: str) -> tuple:
-    """Augmented float32 rows of the centred points for ``‖x − y‖² = [x, ‖x‖², 1] · [−2y, 1, ‖y‖²]``:
-    (rows_t [5, P] with the points along the fast axis, cols [P, 5] whose row j is the query y_j)."""
+@njit(cache=True, fastmath={"nnan", "nsz", "reassoc", "contract"})
+def _farthest_orders(p, n, starts):
+    """FPS loop of ``farthest_point_orders``: ``p`` [3, P] float32 centred (coordinates along the fast axis),
+    ``starts`` [S] → indices [S, n ≤ P]. Each step updates every point's squared distance to the set and takes the
+    first farthest."""
+    P, S = p.shape[1], len(starts)
+    px, py, pz = p[0], p[1], p[2]                                               # [P] each
+    idx = np.empty((S, n), np.int64)
+    d = np.empty(P, np.float32)
+    for s in range(S):
+        j = starts[s]
+        idx[s, 0] = j
+        for i in range(P):
+            d[i] = np.float32(3.0e38)
+        for k in range(1, n + 1):
+            x, y, z = px[j], py[j], pz[j]
+            if k == n:
+                break
+            best = np.float32(-1.0)
+            for i in range(P):                                                  # vectorised: update and max
+                dx, dy, dz = px[i] - x, py[i] - y, pz[i] - z
+                e = min(d[i], dx * dx + dy * dy + dz * dz)
+                d[i] = e
+                best = max(best, e)
+            bi = 0
+            while d[bi] != best:                                                # its first index
+                bi += 1
+            idx[s, k] = bi
+            j = bi
+    return idx
+
+
+def _centred_columns(points, caller: str) -> np.ndarray:
+    """[3, P] float32 of the centred ``points`` [P, 3] (centring keeps float32 distances exact to its precision)."""
     p = np.asarray(points, dtype=np.float64)
-    if len(p) == 0:
-        raise ValueError(f"{caller}: no points")
-    p = (p - p.mean(0)).astype(np.float32)                                      # [P, 3] centred
-    sq = np.einsum("ij,ij->i", p, p)[:, None]                                   # [P, 1]
-    one = np.ones((len(p), 1), np.float32)
-    return np.ascontiguousarray(np.concatenate([p, sq, one], 1).T), np.concatenate([-2.0 * p, one, sq], 1)
+    if p.ndim != 2 or p.shape[1] != 3 or len(p) == 0:
+        raise ValueError(f"{caller}: points must be [P ≥ 1, 3], got {p.shape}")
+    return np.ascontiguousarray((p - p.mean(0)).T, np.float32)
 
 
 def farthest_point_order(points: np.ndarray, n: int, start: int = 0) -> np.ndarray:
     """Greedy farthest-point sampling: indices [n] of ``points`` [P, 3], nested (its first k are FPS(k)).
 
-    When ``n > P`` the order wraps around (indices repeat), so the model still receives N points. Each step is one
-    float32 mat-vec of augmented rows ``[x, ‖x‖², 1] · [−2y, 1, ‖y‖²] = ‖x − y‖²`` (points centred first, which keeps
-    the expansion exact to float32 precision), one in-place minimum and one argmax.
+    When ``n > P`` the order wraps around (indices repeat), so the model still receives N points. Distances are
+    float32 on the centred points; among equally far points the first wins.
     """
-    rows_t, cols = _distance_tables(points, "farthest_point_order")            # [5, P], [P, 5]
-    P = cols.shape[0]
-    m = min(int(n), P)
-    idx = np.empty(m, dtype=np.int64)
-    idx[0] = start
-    d = cols[start] @ rows_t                                                    # [P] squared distance to the set
-    t = np.empty_like(d)
-    matmul, minimum, argmax = np.matmul, np.minimum, np.ndarray.argmax          # the loop is call-overhead bound
-    for i in range(1, m):
-        j = argmax(d)
-        idx[i] = j
-        matmul(cols[j], rows_t, out=t)
-        minimum(d, t, out=d)
-    if n > P:
-        idx = np.resize(idx, int(n))
-    return idx
+    return farthest_point_orders(points, n, [start])[0]
 
 
 def farthest_point_orders(points: np.ndarray, n: int, starts) -> np.ndarray:
-    """``farthest_point_order`` from several starts at once: indices [S, n] of ``points`` [P, 3], row s the nested
-    order from ``starts[s]``. One loop for all starts (each step a [S, 5] × [5, P] product), so S orders cost about
-    what one does when P is a few thousand."""
-    rows_t, cols = _distance_tables(points, "farthest_point_orders")           # [5, P], [P, 5]
-    P = cols.shape[0]
+    """``farthest_point_order`` from several starts: indices [S, n] of ``points`` [P, 3], row s the nested order
+    from ``starts[s]``."""
+    p = _centred_columns(points, "farthest_point_orders")                     # [3, P]
+    P = p.shape[1]
     st = np.asarray(starts, dtype=np.int64).reshape(-1)                       # [S]
     if len(st) and (st.min() < 0 or st.max() >= P):
         raise ValueError(f"farthest_point_orders: starts must index the {P} points, got {st.tolist()}")
-    m = min(int(n), P)
-    idx = np.empty((len(st), m), dtype=np.int64)                                # [S, m]
-    idx[:, 0] = st
-    d = cols[st] @ rows_t                                                       # [S, P] squared distance to each set
-    t = np.empty_like(d)
-    for i in range(1, m):
-        j = d.argmax(1)                                                         # [S]
-        idx[:, i] = j
-        np.matmul(cols[j], rows_t, out=t)
-        np.minimum(d, t, out=d)
-    if n > P:                                                                   # wrap each order, as above
+    idx = _farthest_orders(p, min(int(n), P), st)                               # [S, m]
+    if n > P:                                                                   # wrap each order
         idx = np.stack([np.resize(r, int(n)) for r in idx]) if len(st) else np.empty((0, int(n)), np.int64)
     return idx
 

@@ -1,19 +1,22 @@
-"""Batched rigid ICP: many starts (hypotheses × copies × templates) against one observation in one loop.
+"""Batched rigid ICP: many starts (hypotheses × copies × templates) against one observation, in one compiled loop.
 
 Convention:
     Poses map a template into the observation, ``x ≈ R @ y + t`` (column vectors), both in one unit (the SDK uses
     model units). Residual of a pose: mean squared nearest-neighbour distance observation → template, plus
     template → observation when ``bidirectional`` (complete inputs; a partial view covers only part of a template).
     Every start of one call shares the observation; starts may use different templates of equal size (``which``).
-    Nearest neighbours: ``equipose.core.neighbours`` (one structure per template and one for the observation, built
-    once per call or passed in), queried for all live starts of a template in one batch.
+    Nearest neighbours: exact (float32 distances), by ``equipose.core.nearest`` — brute force for small sets, k-d
+    trees warm-started from each point's previous partner for large ones.
+    Rotation updates: Horn's closed form (the unit quaternion maximising Σ dᵀ R s, the top eigenvector of a
+    symmetric 4 × 4 matrix), the same least-squares rotation as Kabsch's SVD and always proper.
 """
 from __future__ import annotations
 
 import numpy as np
+from numba import njit
 
 from equipose.core.errors import InvalidPointsError
-from equipose.core.neighbours import NearestNeighbours
+from equipose.core.nearest import build_index, make_scratch, nearest_brute, nearest_tree
 
 __all__ = ["kabsch", "icp_multi"]
 
@@ -25,117 +28,207 @@ def kabsch(src: np.ndarray, dst: np.ndarray) -> tuple:
     """
     ms, md = src.mean(1), dst.mean(1)                                           # [B, 3]
     H = np.matmul(np.transpose(src, (0, 2, 1)), dst - md[:, None])             # [B, 3, 3] Σ src (dst − d̄)ᵀ
-    return _rotation_from_covariance(H, ms, md)
-
-
-def _rotation_from_covariance(H: np.ndarray, ms: np.ndarray, md: np.ndarray) -> tuple:
-    """Kabsch's rotation of the cross-covariance H [B, 3, 3] (= Σ (s − s̄)(d − d̄)ᵀ) and the translation that maps the
-    source mean ``ms`` [B, 3] onto the destination mean ``md`` [B, 3]."""
     U, _, Vt = np.linalg.svd(H)
     R = np.matmul(U, Vt).transpose(0, 2, 1)                                     # [B, 3, 3] V Uᵀ
     flip = np.linalg.det(R) < 0                                                 # reflections: V diag(1, 1, −1) Uᵀ
     if flip.any():
         Vt[flip, 2] *= -1.0
         R[flip] = np.matmul(U[flip], Vt[flip]).transpose(0, 2, 1)
-    t = md - np.einsum("bij,bj->bi", R, ms)                                     # [B, 3]
-    return R, t
+    return R, md - np.einsum("bij,bj->bi", R, ms)
 
 
-def _to_local(x: np.ndarray, R: np.ndarray, t: np.ndarray) -> np.ndarray:
-    """[L, N, 3] = Rᵀ(x − t) for each start: one product x · [R_1 … R_L] ([N, 3] · [3, 3L])."""
-    L = len(R)
-    flat = x @ np.transpose(R, (1, 0, 2)).reshape(3, 3 * L)                    # [N, 3L]
-    shift = np.einsum("li,lik->lk", t, R)                                       # [L, 3] = Rᵀ t
-    return flat.reshape(len(x), L, 3).transpose(1, 0, 2) - shift[:, None]      # [L, N, 3]
+@njit(cache=True)
+def _top_eigenvector(N):
+    """Unit eigenvector of the largest eigenvalue of the symmetric 4 × 4 ``N`` (cyclic Jacobi rotations)."""
+    A = N.copy()
+    V = np.eye(4)
+    for _ in range(30):
+        off = 0.0
+        for p in range(3):
+            for q in range(p + 1, 4):
+                off += A[p, q] * A[p, q]
+        if off < 1e-30 * (A[0, 0] ** 2 + A[1, 1] ** 2 + A[2, 2] ** 2 + A[3, 3] ** 2 + 1e-300):
+            break
+        for p in range(3):
+            for q in range(p + 1, 4):
+                if A[p, q] == 0.0:
+                    continue
+                theta = (A[q, q] - A[p, p]) / (2.0 * A[p, q])
+                t = (1.0 if theta >= 0.0 else -1.0) / (abs(theta) + np.sqrt(theta * theta + 1.0))
+                c = 1.0 / np.sqrt(t * t + 1.0)
+                s = t * c
+                for k in range(4):                                              # A ← Jᵀ A J
+                    akp, akq = A[k, p], A[k, q]
+                    A[k, p], A[k, q] = c * akp - s * akq, s * akp + c * akq
+                for k in range(4):
+                    apk, aqk = A[p, k], A[q, k]
+                    A[p, k], A[q, k] = c * apk - s * aqk, s * apk + c * aqk
+                for k in range(4):                                              # V ← V J
+                    vkp, vkq = V[k, p], V[k, q]
+                    V[k, p], V[k, q] = c * vkp - s * vkq, s * vkp + c * vkq
+    best = 0
+    for i in range(1, 4):
+        if A[i, i] > A[best, best]:
+            best = i
+    return V[:, best]
 
 
-def _indices(index, queries: np.ndarray) -> np.ndarray:
-    """Nearest-neighbour indices from a ``NearestNeighbours`` or any structure with ``query`` (e.g. cKDTree)."""
-    return index.nearest_indices(queries) if hasattr(index, "nearest_indices") else index.query(queries)[1]
+@njit(cache=True)
+def _fit_rotation(H, R):
+    """R [3, 3] (written in place) = the rotation maximising tr(R H) for the cross-covariance
+    H = Σ (s − s̄)(d − d̄)ᵀ, i.e. the least-squares rotation of d ≈ R s (Horn's quaternion)."""
+    Sxx, Sxy, Sxz = H[0, 0], H[0, 1], H[0, 2]
+    Syx, Syy, Syz = H[1, 0], H[1, 1], H[1, 2]
+    Szx, Szy, Szz = H[2, 0], H[2, 1], H[2, 2]
+    N = np.empty((4, 4))
+    N[0, 0], N[0, 1], N[0, 2], N[0, 3] = Sxx + Syy + Szz, Syz - Szy, Szx - Sxz, Sxy - Syx
+    N[1, 1], N[1, 2], N[1, 3] = Sxx - Syy - Szz, Sxy + Syx, Szx + Sxz
+    N[2, 2], N[2, 3] = -Sxx + Syy - Szz, Syz + Szy
+    N[3, 3] = -Sxx - Syy + Szz
+    for i in range(4):
+        for j in range(i):
+            N[i, j] = N[j, i]
+    w, x, y, z = _top_eigenvector(N)
+    R[0, 0], R[0, 1], R[0, 2] = w * w + x * x - y * y - z * z, 2 * (x * y - w * z), 2 * (x * z + w * y)
+    R[1, 0], R[1, 1], R[1, 2] = 2 * (x * y + w * z), w * w - x * x + y * y - z * z, 2 * (y * z - w * x)
+    R[2, 0], R[2, 1], R[2, 2] = 2 * (x * z - w * y), 2 * (y * z + w * x), w * w - x * x - y * y + z * z
+
+
+@njit(cache=True)
+def _hold_axis(R, axis, up):
+    """Turn R [3, 3] in place by the smallest rotation that takes its column ``axis`` onto the unit ``up`` [3]
+    (for the opposite direction: the half turn about an axis perpendicular to the column)."""
+    a = R[:, axis].copy()
+    a /= np.sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2])
+    v = np.array([a[1] * up[2] - a[2] * up[1], a[2] * up[0] - a[0] * up[2], a[0] * up[1] - a[1] * up[0]])
+    c = a[0] * up[0] + a[1] * up[1] + a[2] * up[2]
+    if c < -1.0 + 1e-9:
+        k = np.argmin(np.abs(a))
+        e = np.zeros(3)
+        e[k] = 1.0
+        p = np.array([a[1] * e[2] - a[2] * e[1], a[2] * e[0] - a[0] * e[2], a[0] * e[1] - a[1] * e[0]])
+        p /= np.sqrt(p[0] * p[0] + p[1] * p[1] + p[2] * p[2])
+        T = 2.0 * np.outer(p, p) - np.eye(3)
+    else:
+        V = np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+        T = np.eye(3) + V + (V @ V) / max(1.0 + c, 1e-12)
+    R[:, :] = T @ R
+
+
+@njit(cache=True)
+def _icp_loop(x, Y, which, R, t, iters, bidirectional, hold_axis, up, res):
+    """The ICP of every start, in place on R [J, 3, 3], t [J, 3], res [J] (see ``icp_multi``)."""
+    N, M = x.shape[0], Y.shape[1]
+    K = N + (M if bidirectional else 0)
+    stack, bound, dist, bits = make_scratch(max(N, M))
+    pairs, last = np.empty(K, np.int64), np.empty(K, np.int64)
+    _, soa, centre, tpoints, ids, nodes, split = build_index(Y)                # templates, unpacked once
+    _, xsoa, xcentre, xtpoints, xids, xnodes, xsplit = build_index(x.reshape(1, N, 3) if bidirectional else Y[:1])
+    tree, xtree = tpoints.shape[1] > 0, xtpoints.shape[1] > 0
+    H, q = np.empty((3, 3)), np.empty(3)
+    for j in range(R.shape[0]):
+        w = which[j]
+        Yw = Y[w]
+        pairs[:] = -1
+        if hold_axis >= 0:
+            _hold_axis(R[j], hold_axis, up)
+        for it in range(iters + 1):
+            Rj, tj = R[j], t[j]
+            S = np.zeros((3, 3))                                               # Σ s dᵀ over the pairs
+            ss, ds = np.zeros(3), np.zeros(3)                                   # Σ s, Σ d
+            r1 = 0.0
+            for n in range(N):                                                  # observed → template
+                px, py, pz = x[n, 0] - tj[0], x[n, 1] - tj[1], x[n, 2] - tj[2]
+                q[0] = Rj[0, 0] * px + Rj[1, 0] * py + Rj[2, 0] * pz            # Rᵀ(x − t)
+                q[1] = Rj[0, 1] * px + Rj[1, 1] * py + Rj[2, 1] * pz
+                q[2] = Rj[0, 2] * px + Rj[1, 2] * py + Rj[2, 2] * pz
+                if tree:
+                    m = nearest_tree(tpoints, ids, nodes, split, w, q, pairs[n], stack, bound)
+                else:
+                    m = nearest_brute(soa, centre, w, q, dist, bits)
+                d2 = (Yw[m, 0] - q[0]) ** 2 + (Yw[m, 1] - q[1]) ** 2 + (Yw[m, 2] - q[2]) ** 2
+                last[n] = m
+                r1 += d2
+                for a in range(3):
+                    ss[a] += Yw[m, a]
+                    ds[a] += x[n, a]
+                    for b in range(3):
+                        S[a, b] += Yw[m, a] * x[n, b]
+            r = r1 / N
+            if bidirectional:                                                   # template → observed
+                r2 = 0.0
+                for m in range(M):
+                    y0, y1, y2 = Yw[m, 0], Yw[m, 1], Yw[m, 2]
+                    q[0] = Rj[0, 0] * y0 + Rj[0, 1] * y1 + Rj[0, 2] * y2 + tj[0]    # R y + t
+                    q[1] = Rj[1, 0] * y0 + Rj[1, 1] * y1 + Rj[1, 2] * y2 + tj[1]
+                    q[2] = Rj[2, 0] * y0 + Rj[2, 1] * y1 + Rj[2, 2] * y2 + tj[2]
+                    if xtree:
+                        n = nearest_tree(xtpoints, xids, xnodes, xsplit, 0, q, pairs[N + m], stack, bound)
+                    else:
+                        n = nearest_brute(xsoa, xcentre, 0, q, dist, bits)
+                    d2 = (x[n, 0] - q[0]) ** 2 + (x[n, 1] - q[1]) ** 2 + (x[n, 2] - q[2]) ** 2
+                    last[N + m] = n
+                    r2 += d2
+                    for a in range(3):
+                        ss[a] += Yw[m, a]
+                        ds[a] += x[n, a]
+                        for b in range(3):
+                            S[a, b] += Yw[m, a] * x[n, b]
+                r += r2 / M
+            res[j] = r
+            if it == iters:
+                break
+            same = True                                                         # same pairs as the step that led
+            for k in range(K):                                                  # here: its fit is this pose again
+                if last[k] != pairs[k]:
+                    same = False
+                pairs[k] = last[k]
+            if same:
+                break
+            for a in range(3):
+                for b in range(3):
+                    H[a, b] = S[a, b] - ss[a] * ds[b] / K                       # Σ (s − s̄)(d − d̄)ᵀ
+            _fit_rotation(H, Rj)
+            if hold_axis >= 0:
+                _hold_axis(Rj, hold_axis, up)
+            for a in range(3):                                                  # best translation for that R
+                tj[a] = (ds[a] - Rj[a, 0] * ss[0] - Rj[a, 1] * ss[1] - Rj[a, 2] * ss[2]) / K
 
 
 def icp_multi(observed: np.ndarray, template: np.ndarray, R0: np.ndarray, t0: np.ndarray, iters: int = 30,
-              bidirectional: bool = False, tree=None, constrain=None, which=None, observed_tree=None) -> tuple:
+              bidirectional: bool = False, which=None, hold=None) -> tuple:
     """ICP from several starts at once.
 
     Convention: ``observed`` [N ≥ 3, 3]; ``template`` [M ≥ 3, 3], or [T, M, 3] with ``which`` [J] the template of
     each start; ``R0`` [J, 3, 3], ``t0`` [J, 3]. Returns (R [J, 3, 3], t [J, 3], residual [J]) after ``iters``
     updates (the residual is that of the returned pose).
 
-    ``tree``: a prebuilt nearest-neighbour structure of a single template (``NearestNeighbours`` or anything with
-    its ``query``), ``observed_tree`` the same for the observation. ``constrain``: optional map of rotations
-    [J, 3, 3] → [J, 3, 3] applied to the starts and after every Kabsch step (the translation is then re-fitted for
-    the constrained rotation), e.g. the up prior's "keep +z on up". A start whose nearest-neighbour pairs repeat
-    those of the step that moved it is at a fixed point (the fit of the same pairs is the same pose) and leaves the
-    loop early with exactly the result the remaining iterations would give.
+    ``hold``: optional (axis, direction [3]): every rotation keeps its column ``axis`` on ``direction`` — the starts
+    and every update are turned onto it by the smallest rotation, and the translation is re-fitted for the held
+    rotation (e.g. the up prior's "keep +z on up"). A start whose nearest-neighbour pairs repeat those of the step
+    that moved it is at a fixed point (the fit of the same pairs is the same pose) and stops early with exactly the
+    result the remaining iterations would give.
 
-    Each update is Kabsch's fit of all pairs (observed → template, and template → observed when bidirectional),
-    accumulated without stacking them: H = Σ s dᵀ − K s̄ d̄ᵀ over the K pairs of a start.
+    Each update is the least-squares rigid fit of all pairs (observed → template, and template → observed when
+    bidirectional), accumulated without storing them: H = Σ s dᵀ − K s̄ d̄ᵀ over the K pairs of a start.
     """
-    x = np.asarray(observed, np.float64)                                       # [N, 3]
+    x = np.ascontiguousarray(observed, np.float64)                             # [N, 3]
     Y = np.asarray(template, np.float64)
-    Y = Y[None] if Y.ndim == 2 else Y                                          # [T, M, 3]
+    Y = np.ascontiguousarray(Y[None] if Y.ndim == 2 else Y)                     # [T, M, 3]
     if x.ndim != 2 or x.shape[1] != 3 or len(x) < 3 or Y.ndim != 3 or Y.shape[2] != 3 or Y.shape[1] < 3:
         raise InvalidPointsError(f"ICP needs [N≥3, 3] point arrays, got {x.shape} and {np.shape(template)}")
     R, t = np.array(R0, np.float64), np.array(t0, np.float64)
-    J, N, M = len(R), len(x), Y.shape[1]
+    J = len(R)
     if R.shape != (J, 3, 3) or t.shape != (J, 3):
         raise InvalidPointsError(f"ICP starts must be R0 [J, 3, 3] and t0 [J, 3], got {R.shape}, {t.shape}")
-    which = np.zeros(J, int) if which is None else np.asarray(which, int)      # [J] template of each start
-    groups = np.unique(which)
-    index = {int(k): tree if (tree is not None and len(Y) == 1) else NearestNeighbours(Y[k]) for k in groups}
-    obs_index = (observed_tree or NearestNeighbours(x)) if bidirectional else None
-    x_sum = x.sum(0)                                                           # [3]
-    K = N + (M if bidirectional else 0)                                        # pairs per start
-    if constrain is not None:
-        R = constrain(R)
-    res = np.empty(J)
-    last = np.full((J, K), -1)                                                 # [J, K] previous correspondences
-    live = np.arange(J)                                                        # starts still moving
-    for it in range(iters + 1):
-        L = len(live)
-        Ra, ta, wa = R[live], t[live], which[live]                             # [L, 3, 3], [L, 3], [L]
-        local = _to_local(x, Ra, ta)                                           # [L, N, 3] = Rᵀ(x − t)
-        if len(groups) == 1:
-            i1 = _indices(index[int(groups[0])], local.reshape(-1, 3)).reshape(L, N)
-        else:
-            i1 = np.empty((L, N), int)
-            for k in np.unique(wa):
-                js = np.nonzero(wa == k)[0]
-                i1[js] = _indices(index[int(k)], local[js].reshape(-1, 3)).reshape(len(js), N)
-        src = Y[wa[:, None], i1]                                               # [L, N, 3] template ↔ observed
-        diff = local - src
-        res[live] = np.einsum("lni,lni->l", diff, diff) / N                   # [L]
-        pairs = i1
-        if bidirectional:
-            Yl = Y[wa]                                                         # [L, M, 3] each start's template
-            posed = np.matmul(Yl, np.transpose(Ra, (0, 2, 1))) + ta[:, None]   # [L, M, 3] = R y + t
-            i2 = _indices(obs_index, posed.reshape(-1, 3)).reshape(L, M)
-            back = x[i2]                                                       # [L, M, 3]
-            d2 = posed - back
-            res[live] += np.einsum("lmi,lmi->l", d2, d2) / M
-            pairs = np.concatenate([i1, i2], 1)
-        if it == iters:
-            break
-        # same pairs as the step that led here: that step's fit is this pose again, so the start has converged
-        moving = (pairs != last[live]).any(1)                                  # [L]
-        last[live] = pairs
-        if not moving.all():
-            live, src = live[moving], src[moving]
-            if bidirectional:
-                Yl, back = Yl[moving], back[moving]
-            if not len(live):
-                break
-        S = np.matmul(np.transpose(src, (0, 2, 1)), x)                         # [L, 3, 3] Σ s dᵀ
-        s_sum, d_sum = src.sum(1), np.broadcast_to(x_sum, (len(live), 3))      # [L, 3]
-        if bidirectional:
-            S = S + np.matmul(np.transpose(Yl, (0, 2, 1)), back)
-            s_sum, d_sum = s_sum + Yl.sum(1), d_sum + back.sum(1)
-        ms, md = s_sum / K, d_sum / K                                          # [L, 3] pair means
-        H = S - K * ms[:, :, None] * md[:, None, :]                            # [L, 3, 3]
-        Rn, tn = _rotation_from_covariance(H, ms, md)
-        if constrain is not None:
-            Rn = constrain(Rn)
-            tn = md - np.einsum("jik,jk->ji", Rn, ms)                          # best translation for that R
-        R[live], t[live] = Rn, tn
+    which = np.zeros(J, np.int64) if which is None else np.asarray(which, np.int64)   # [J] template of each start
+    if which.shape != (J,) or (J and (which.min() < 0 or which.max() >= len(Y))):
+        raise InvalidPointsError(f"ICP which must index the {len(Y)} templates for each of the {J} starts")
+    axis, up = -1, np.zeros(3)
+    if hold is not None:
+        axis, up = int(hold[0]), np.asarray(hold[1], np.float64)
+        up = up / np.linalg.norm(up)
+    res = np.zeros(J)
+    if J:
+        _icp_loop(x, Y, which, R, t, int(iters), bool(bidirectional), axis, up, res)
     return R, t, res

@@ -18,7 +18,6 @@ from __future__ import annotations
 import numpy as np
 
 from equipose.core.errors import ConfigError
-from equipose.core.geometry import rotation_between
 from equipose.runtime.hypotheses import (AMBIGUOUS_MARGIN, CONFIDENCE_MIN_ANGLE_DEG, FLIP_MIN_ANGLE_DEG, HALF_TURNS,
                                          Selection, symmetric_distance_deg)
 from equipose.runtime.refine import icp_multi
@@ -54,11 +53,6 @@ def check_up(up, allow_plane: bool = True):
     return u / np.linalg.norm(u)
 
 
-def _keep_up(R: np.ndarray, up: np.ndarray) -> np.ndarray:
-    """[J, 3, 3] rotations turned (smallest turn each) so their up axis is exactly ``up``."""
-    return rotation_between(R[:, :, UP_AXIS], up) @ R
-
-
 def upright_icp(points, template, R0, t0, up, iters: int = COARSE_ITERS + FINE_ITERS, bidirectional: bool = False,
                 which=None) -> tuple:
     """ICP from several starts with the rotation's up axis held on ``up`` (each Kabsch step is turned back onto it).
@@ -67,8 +61,8 @@ def upright_icp(points, template, R0, t0, up, iters: int = COARSE_ITERS + FINE_I
     ``icp_multi``). Returns (R [J, 3, 3], t [J, 3], residual [J]) —
     mean squared nearest-neighbour distance observation → template (+ the reverse when ``bidirectional``).
     """
-    return icp_multi(points, template, R0, t0, iters=iters, bidirectional=bidirectional,
-                     constrain=lambda R: _keep_up(R, up), which=which)
+    return icp_multi(points, template, R0, t0, iters=iters, bidirectional=bidirectional, which=which,
+                     hold=(UP_AXIS, up))
 
 
 def select_upright(points, template, R_cat, t_cat, scores, up, *, symmetry: str = "none", top_k: int = 5,

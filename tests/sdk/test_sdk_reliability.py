@@ -29,7 +29,9 @@ def test_sparse_uint16_frame_gets_a_pose(estimator):
     d = np.zeros((480, 640), np.uint16)
     d[1::4, 1::4] = 900                                                          # off the 1/16 unit-check lattice
     r = estimator.predict(d, K_VGA, box=(200, 150, 200, 200))
-    assert np.all(np.isfinite(r.rotation)) and r.translation[2] == pytest.approx(0.9, abs=0.05)
+    # metres, near the plane: the untrained test model's own offset from the cloud's centre reaches a few cm (which
+    # of the plane's equidistant points it reads decides it); a unit error would be off by 10³
+    assert np.all(np.isfinite(r.rotation)) and r.translation[2] == pytest.approx(0.9, abs=0.1)
 
 
 @pytest.mark.parametrize("K, shape, match", [

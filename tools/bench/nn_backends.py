@@ -1,10 +1,11 @@
-"""Nearest-neighbour backends side by side on the SDK's ICP sizes: the measurement behind
-``equipose.core.neighbours`` (dense float32 product up to ``GEMM_MAX_POINTS`` reference points, cKDTree above).
+"""Nearest-neighbour backends side by side on the SDK's ICP sizes: the measurement behind ``equipose.core.nearest``
+(compiled brute force up to ``BRUTE_MAX_POINTS`` reference points, its compiled k-d tree above).
 
 Usage: python tools/bench/nn_backends.py [--runs R] [--json FILE]
 Each row: one query batch (J ICP starts × N observed points) against M reference points, median ms of R runs,
-build excluded and included. Backends: equipose gemm and kdtree (scipy cKDTree), small_gicp's KdTree (a dependency,
-the SDK's choice above ``GEMM_MAX_POINTS``), and pykdtree where installed (``pip install pykdtree``).
+build excluded and included. Backends: the compiled brute force and k-d tree (each forced), scipy's cKDTree, and
+pykdtree / small_gicp's KdTree where installed (``pip install pykdtree small_gicp``). Queries here start cold (the
+ICP loop also warm-starts its tree queries from the previous partner).
 """
 from __future__ import annotations
 
@@ -32,7 +33,9 @@ def _median_ms(fn, runs: int) -> float:
 
 def backends() -> dict:
     """{name: build(reference [M, 3]) → query(q [Q, 3]) callable} for every backend importable here."""
-    out = {name: (lambda P, b=name: NearestNeighbours(P, b).nearest_indices) for name in ("gemm", "kdtree")}
+    out = {"brute": lambda P: NearestNeighbours(P, brute_max=len(P)).nearest_indices,
+           "tree": lambda P: NearestNeighbours(P, brute_max=0).nearest_indices,
+           "cKDTree": lambda P: NearestNeighbours(P, "kdtree").nearest_indices}
     try:
         from pykdtree.kdtree import KDTree
         out["pykdtree"] = lambda P: (lambda q, t=KDTree(P): t.query(q, k=1)[1])

@@ -4,15 +4,14 @@ rotations, best final residual wins.
 Convention:
     ``observed`` [N, 3] and ``template`` [M, 3] in the same units (metres or model units); the template is in the
     category frame. Result (R [3, 3], t [3]) maps the template into the observation: x ≈ R @ y + t (column vectors),
-    i.e. the same pose convention as the network. All 60 initialisations run together (batched Kabsch via SVD);
-    nearest neighbours by scipy ``cKDTree``.
+    i.e. the same pose convention as the network. All 60 initialisations run in the SDK's compiled ICP
+    (``equipose.core.icp``: exact nearest neighbours from k-d trees, closed-form rotation updates).
     ``bidirectional`` (complete shapes) adds template→observation correspondences; partial observations use only
     observation→template, as a partial view covers part of the template.
 """
 from __future__ import annotations
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from equipose.core import icosahedral
 from equipose.core.errors import InvalidPointsError
@@ -21,16 +20,15 @@ from equipose.runtime.refine import icp_multi, kabsch  # noqa: F401  (re-exporte
 __all__ = ["kabsch", "icp_multi", "icp60_all", "icp60", "icp60_outputs"]
 
 
-def icp60_all(observed: np.ndarray, template: np.ndarray, iters: int = 30, bidirectional: bool = False,
-              tree: cKDTree | None = None) -> tuple:
+def icp60_all(observed: np.ndarray, template: np.ndarray, iters: int = 30, bidirectional: bool = False) -> tuple:
     """All 60 ICP runs started at the icosahedral rotations (translation: centroid alignment).
 
-    Returns (R [60, 3, 3], t [60, 3], residual [60]) in anchor order; ``tree``: a cKDTree of ``template`` to reuse.
+    Returns (R [60, 3, 3], t [60, 3], residual [60]) in anchor order.
     """
     x, y = np.asarray(observed, np.float64), np.asarray(template, np.float64)
     A = icosahedral.ANCHORS.astype(np.float64)                                 # [60, 3, 3]
     t0 = x.mean(0)[None] - np.einsum("jik,k->ji", A, y.mean(0))               # [60, 3]
-    return icp_multi(x, y, A, t0, iters=iters, bidirectional=bidirectional, tree=tree)
+    return icp_multi(x, y, A, t0, iters=iters, bidirectional=bidirectional)
 
 
 def icp60(observed: np.ndarray, template: np.ndarray, iters: int = 30, bidirectional: bool = False) -> tuple:
@@ -52,10 +50,9 @@ def icp60_outputs(model_points: np.ndarray, template: np.ndarray, iters: int = 3
     if x.ndim != 3 or x.shape[-1] != 3:
         raise InvalidPointsError(f"ICP-60 outputs need model points [B, N, 3], got {x.shape}")
     y = np.asarray(template, np.float64)
-    tree = cKDTree(y)
     Rs, ts, rs = [], [], []
     for xb in x:
-        R, t, res = icp60_all(xb, y, iters=iters, bidirectional=bidirectional, tree=tree)
+        R, t, res = icp60_all(xb, y, iters=iters, bidirectional=bidirectional)
         Rs.append(R)
         ts.append(t)
         rs.append(res)

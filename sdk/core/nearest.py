@@ -1,0 +1,185 @@
+"""Compiled exact nearest-neighbour search for numba kernels (the ICP loop of ``equipose.core.icp``).
+
+Two methods behind one index, chosen by the size of the point set (``BRUTE_MAX_POINTS``; measured side by side
+with ``python tools/bench/nn_backends.py``, figures in docs/benchmarks.md):
+
+- brute force: float32 squared distances to every point (a loop the compiler vectorises), then the minimum of the
+  keys ``distance bits << 32 | index`` (vectorised too; non-negative floats order as their bit patterns), so ties go
+  to the smaller index;
+- a k-d tree, balanced by construction: a node over the sorted index range [lo, hi) splits at its middle position
+  along the axis of largest spread, and ranges of at most ``LEAF_SIZE`` points are leaves. Its shape depends only on
+  the number of points, so the trees of several sets of equal size stack into one set of arrays. Queries start
+  their bound at a guess (in ICP: the partner the point had in the previous iteration), which prunes nearly every
+  node.
+
+Kernels unpack an index once and call ``nearest_brute`` / ``nearest_tree`` per query: unpacking a tuple of arrays
+costs reference counting on every call, about as much as a brute-force query of 256 points itself.
+
+Convention: points [M, 3] float64, one unit and one frame; returned distances are squared Euclidean in that unit,
+recomputed in float64 from the chosen pair.
+"""
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+__all__ = ["BRUTE_MAX_POINTS", "LEAF_SIZE", "build_index", "make_scratch", "nearest_brute", "nearest_tree",
+           "nearest_all"]
+
+BRUTE_MAX_POINTS = 512
+LEAF_SIZE = 8
+LO, HI, AXIS, LEFT, RIGHT = range(5)         # columns of a tree's node table (AXIS −1: a leaf)
+
+
+@njit(cache=True)
+def _node_count(m: int) -> int:
+    """Nodes of the tree over ``m`` points (leaves hold at most ``LEAF_SIZE``)."""
+    count, stack = 0, [m]
+    while stack:
+        size = stack.pop()
+        count += 1
+        if size > LEAF_SIZE:
+            stack.append(size // 2)
+            stack.append(size - size // 2)
+    return count
+
+
+@njit(cache=True)
+def _build_tree(points, order, nodes, split):
+    """Fill one tree in place: ``order`` [M] (point index per sorted position), ``nodes`` [n, 5], ``split`` [n]."""
+    stack = np.empty((64, 3), np.int64)                                         # (node, lo, hi)
+    stack[0, 0], stack[0, 1], stack[0, 2] = 0, 0, len(order)
+    top, used = 1, 1
+    while top:
+        top -= 1
+        node, a, b = stack[top, 0], stack[top, 1], stack[top, 2]
+        nodes[node, LO], nodes[node, HI] = a, b
+        if b - a <= LEAF_SIZE:
+            nodes[node, AXIS] = -1
+            continue
+        best, k = -1.0, 0
+        for d in range(3):                                                      # axis of largest spread
+            mn, mx = np.inf, -np.inf
+            for p in range(a, b):
+                v = points[order[p], d]
+                mn, mx = min(mn, v), max(mx, v)
+            if mx - mn > best:
+                best, k = mx - mn, d
+        seg = order[a:b].copy()
+        vals = np.empty(b - a)
+        for p in range(b - a):
+            vals[p] = points[seg[p], k]
+        srt = np.argsort(vals, kind="mergesort")
+        for p in range(b - a):
+            order[a + p] = seg[srt[p]]
+        mid = a + (b - a) // 2
+        nodes[node, AXIS], split[node] = k, points[order[mid], k]
+        nodes[node, LEFT], nodes[node, RIGHT] = used, used + 1
+        stack[top, 0], stack[top, 1], stack[top, 2] = used, a, mid
+        stack[top + 1, 0], stack[top + 1, 1], stack[top + 1, 2] = used + 1, mid, b
+        top += 2
+        used += 2
+
+
+@njit(cache=True)
+def build_index(P, brute_max: int = BRUTE_MAX_POINTS) -> tuple:
+    """The index of ``P`` [T, M ≥ 1, 3] float64 (T sets of equal size) as arrays:
+
+    (P, soa [T, 3, M] float32 centred per set, centre [T, 3], tree points [T, M, 3] in tree order,
+    ids [T, 2, M] (original index of each tree position, and its inverse), nodes [T, n, 5] int64, split [T, n]).
+    Sets of at most ``brute_max`` points get no tree (its arrays are empty) and are searched by brute force."""
+    T, M = P.shape[0], P.shape[1]
+    centre = np.zeros((T, 3))
+    soa = np.empty((T, 3, M), np.float32)
+    for k in range(T):
+        for a in range(3):
+            c = 0.0
+            for m in range(M):
+                c += P[k, m, a]
+            centre[k, a] = c / M
+            for m in range(M):
+                soa[k, a, m] = P[k, m, a] - centre[k, a]
+    Mt = M if M > brute_max else 0
+    n = _node_count(Mt) if Mt else 0
+    tpoints, ids = np.empty((T, Mt, 3)), np.empty((T, 2, Mt), np.int64)
+    nodes, split = np.zeros((T, n, 5), np.int64), np.zeros((T, n))
+    for k in range(T if Mt else 0):
+        ids[k, 0] = np.arange(M)
+        _build_tree(P[k], ids[k, 0], nodes[k], split[k])
+        for p in range(M):
+            ids[k, 1, ids[k, 0, p]] = p
+            tpoints[k, p] = P[k, ids[k, 0, p]]
+    return P, soa, centre, tpoints, ids, nodes, split
+
+
+@njit(cache=True)
+def make_scratch(size: int) -> tuple:
+    """Work arrays for queries on sets of up to ``size`` points: (int64 [64], float64 [64], float32 [size] and
+    its int32 view)."""
+    dist = np.empty(max(size, 1), np.float32)
+    return np.empty(64, np.int64), np.empty(64), dist, dist.view(np.int32)
+
+
+@njit(cache=True, fastmath=True)
+def nearest_brute(soa, centre, k, q, dist, bits) -> int:
+    """Index of the point of set ``k`` (``soa``, ``centre`` of an index) nearest to ``q`` [3] float64; ``dist`` and
+    ``bits``: scratch (``make_scratch``)."""
+    qx = np.float32(q[0] - centre[k, 0])
+    qy = np.float32(q[1] - centre[k, 1])
+    qz = np.float32(q[2] - centre[k, 2])
+    M = soa.shape[2]
+    for m in range(M):
+        dx, dy, dz = soa[k, 0, m] - qx, soa[k, 1, m] - qy, soa[k, 2, m] - qz
+        dist[m] = dx * dx + dy * dy + dz * dz
+    best = np.int64(0x7FFFFFFFFFFFFFFF)
+    for m in range(M):
+        key = (np.int64(bits[m]) << 32) | m
+        best = key if key < best else best
+    return best & 0xFFFFFFFF
+
+
+@njit(cache=True)
+def nearest_tree(tpoints, ids, nodes, split, k, q, guess, stack, bound) -> int:
+    """Index of the point of tree ``k`` (``tpoints``, ``ids``, ``nodes``, ``split`` of an index) nearest to ``q``
+    [3]. ``guess``: an index whose distance starts the bound (−1: none); ``stack``, ``bound``: scratch."""
+    pts = tpoints[k]
+    if guess >= 0:
+        bp = ids[k, 1, guess]
+        dx, dy, dz = pts[bp, 0] - q[0], pts[bp, 1] - q[1], pts[bp, 2] - q[2]
+        best = dx * dx + dy * dy + dz * dz
+    else:
+        best, bp = np.inf, -1
+    stack[0], bound[0] = 0, 0.0
+    top = 1
+    while top:
+        top -= 1
+        node = stack[top]
+        if bound[top] > best:                                                   # the whole node lies farther
+            continue
+        ax = nodes[k, node, AXIS]
+        while ax >= 0:                                                          # down to the leaf holding q,
+            diff = q[ax] - split[k, node]                                       # the far sides kept for later
+            near_left = diff < 0.0
+            stack[top] = nodes[k, node, RIGHT] if near_left else nodes[k, node, LEFT]
+            bound[top] = diff * diff
+            top += 1
+            node = nodes[k, node, LEFT] if near_left else nodes[k, node, RIGHT]
+            ax = nodes[k, node, AXIS]
+        for p in range(nodes[k, node, LO], nodes[k, node, HI]):
+            dx, dy, dz = pts[p, 0] - q[0], pts[p, 1] - q[1], pts[p, 2] - q[2]
+            d = dx * dx + dy * dy + dz * dz
+            if d < best:
+                best, bp = d, p
+    return ids[k, 0, bp]
+
+
+@njit(cache=True)
+def nearest_all(index, queries, out) -> None:
+    """``out`` [Q] = index of the point of set 0 of ``index`` nearest to each of ``queries`` [Q, 3]."""
+    P, soa, centre, tpoints, ids, nodes, split = index
+    stack, bound, dist, bits = make_scratch(P.shape[1])
+    for i in range(len(queries)):
+        if tpoints.shape[1]:
+            out[i] = nearest_tree(tpoints, ids, nodes, split, 0, queries[i], -1, stack, bound)
+        else:
+            out[i] = nearest_brute(soa, centre, 0, queries[i], dist, bits)
