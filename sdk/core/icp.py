@@ -16,6 +16,7 @@ import numpy as np
 from numba import njit
 
 from equipose.core.errors import InvalidPointsError
+from equipose.core.eigen import top_eigenvector
 from equipose.core.nearest import build_index, make_scratch, nearest_brute, nearest_tree
 
 __all__ = ["kabsch", "icp_multi"]
@@ -38,42 +39,6 @@ def kabsch(src: np.ndarray, dst: np.ndarray) -> tuple:
 
 
 @njit(cache=True)
-def _top_eigenvector(N):
-    """Unit eigenvector of the largest eigenvalue of the symmetric 4 × 4 ``N`` (cyclic Jacobi rotations)."""
-    A = N.copy()
-    V = np.eye(4)
-    for _ in range(30):
-        off = 0.0
-        for p in range(3):
-            for q in range(p + 1, 4):
-                off += A[p, q] * A[p, q]
-        if off < 1e-30 * (A[0, 0] ** 2 + A[1, 1] ** 2 + A[2, 2] ** 2 + A[3, 3] ** 2 + 1e-300):
-            break
-        for p in range(3):
-            for q in range(p + 1, 4):
-                if A[p, q] == 0.0:
-                    continue
-                theta = (A[q, q] - A[p, p]) / (2.0 * A[p, q])
-                t = (1.0 if theta >= 0.0 else -1.0) / (abs(theta) + np.sqrt(theta * theta + 1.0))
-                c = 1.0 / np.sqrt(t * t + 1.0)
-                s = t * c
-                for k in range(4):                                              # A ← Jᵀ A J
-                    akp, akq = A[k, p], A[k, q]
-                    A[k, p], A[k, q] = c * akp - s * akq, s * akp + c * akq
-                for k in range(4):
-                    apk, aqk = A[p, k], A[q, k]
-                    A[p, k], A[q, k] = c * apk - s * aqk, s * apk + c * aqk
-                for k in range(4):                                              # V ← V J
-                    vkp, vkq = V[k, p], V[k, q]
-                    V[k, p], V[k, q] = c * vkp - s * vkq, s * vkp + c * vkq
-    best = 0
-    for i in range(1, 4):
-        if A[i, i] > A[best, best]:
-            best = i
-    return V[:, best]
-
-
-@njit(cache=True)
 def _fit_rotation(H, R):
     """R [3, 3] (written in place) = the rotation maximising tr(R H) for the cross-covariance
     H = Σ (s − s̄)(d − d̄)ᵀ, i.e. the least-squares rotation of d ≈ R s (Horn's quaternion)."""
@@ -88,7 +53,7 @@ def _fit_rotation(H, R):
     for i in range(4):
         for j in range(i):
             N[i, j] = N[j, i]
-    w, x, y, z = _top_eigenvector(N)
+    w, x, y, z = top_eigenvector(N)
     R[0, 0], R[0, 1], R[0, 2] = w * w + x * x - y * y - z * z, 2 * (x * y - w * z), 2 * (x * z + w * y)
     R[1, 0], R[1, 1], R[1, 2] = 2 * (x * y + w * z), w * w - x * x + y * y - z * z, 2 * (y * z - w * x)
     R[2, 0], R[2, 1], R[2, 2] = 2 * (x * z - w * y), 2 * (y * z + w * x), w * w - x * x - y * y + z * z

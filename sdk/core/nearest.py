@@ -6,8 +6,8 @@ with ``python tools/bench/nn_backends.py``, figures in docs/benchmarks.md):
 - brute force: float32 squared distances to every point (a loop the compiler vectorises), then the minimum of the
   keys ``distance bits << 32 | index`` (vectorised too; non-negative floats order as their bit patterns), so ties go
   to the smaller index;
-- a k-d tree, balanced by construction: a node over the sorted index range [lo, hi) splits at its middle position
-  along the axis of largest spread, and ranges of at most ``LEAF_SIZE`` points are leaves. Its shape depends only on
+- a k-d tree, balanced by construction: a node over the index range [lo, hi) splits at its middle position (the
+  median along the axis of largest spread, by quickselect), and ranges of at most ``LEAF_SIZE`` points are leaves. Its shape depends only on
   the number of points, so the trees of several sets of equal size stack into one set of arrays. Queries start
   their bound at a guess (in ICP: the partner the point had in the previous iteration), which prunes nearly every
   node.
@@ -45,6 +45,30 @@ def _node_count(m: int) -> int:
 
 
 @njit(cache=True)
+def _select(points, order, lo, hi, nth, axis):
+    """Reorder ``order[lo..hi]`` (inclusive) so that position ``nth`` holds the point whose ``axis`` coordinate
+    ranks there, with no larger coordinate before it and no smaller one after it (Hoare's quickselect)."""
+    while lo < hi:
+        pivot = points[order[(lo + hi) // 2], axis]
+        i, j = lo, hi
+        while i <= j:
+            while points[order[i], axis] < pivot:
+                i += 1
+            while points[order[j], axis] > pivot:
+                j -= 1
+            if i <= j:
+                order[i], order[j] = order[j], order[i]
+                i += 1
+                j -= 1
+        if nth <= j:
+            hi = j
+        elif nth >= i:
+            lo = i
+        else:
+            return
+
+
+@njit(cache=True)
 def _build_tree(points, order, nodes, split):
     """Fill one tree in place: ``order`` [M] (point index per sorted position), ``nodes`` [n, 5], ``split`` [n]."""
     stack = np.empty((64, 3), np.int64)                                         # (node, lo, hi)
@@ -65,14 +89,8 @@ def _build_tree(points, order, nodes, split):
                 mn, mx = min(mn, v), max(mx, v)
             if mx - mn > best:
                 best, k = mx - mn, d
-        seg = order[a:b].copy()
-        vals = np.empty(b - a)
-        for p in range(b - a):
-            vals[p] = points[seg[p], k]
-        srt = np.argsort(vals, kind="mergesort")
-        for p in range(b - a):
-            order[a + p] = seg[srt[p]]
         mid = a + (b - a) // 2
+        _select(points, order, a, b - 1, mid, k)                                # median to mid, smaller before it
         nodes[node, AXIS], split[node] = k, points[order[mid], k]
         nodes[node, LEFT], nodes[node, RIGHT] = used, used + 1
         stack[top, 0], stack[top, 1], stack[top, 2] = used, a, mid
@@ -142,10 +160,9 @@ def nearest_brute(soa, centre, k, q, dist, bits) -> int:
 def nearest_tree(tpoints, ids, nodes, split, k, q, guess, stack, bound) -> int:
     """Index of the point of tree ``k`` (``tpoints``, ``ids``, ``nodes``, ``split`` of an index) nearest to ``q``
     [3]. ``guess``: an index whose distance starts the bound (−1: none); ``stack``, ``bound``: scratch."""
-    pts = tpoints[k]
     if guess >= 0:
         bp = ids[k, 1, guess]
-        dx, dy, dz = pts[bp, 0] - q[0], pts[bp, 1] - q[1], pts[bp, 2] - q[2]
+        dx, dy, dz = tpoints[k, bp, 0] - q[0], tpoints[k, bp, 1] - q[1], tpoints[k, bp, 2] - q[2]
         best = dx * dx + dy * dy + dz * dz
     else:
         best, bp = np.inf, -1
@@ -166,7 +183,7 @@ def nearest_tree(tpoints, ids, nodes, split, k, q, guess, stack, bound) -> int:
             node = nodes[k, node, LEFT] if near_left else nodes[k, node, RIGHT]
             ax = nodes[k, node, AXIS]
         for p in range(nodes[k, node, LO], nodes[k, node, HI]):
-            dx, dy, dz = pts[p, 0] - q[0], pts[p, 1] - q[1], pts[p, 2] - q[2]
+            dx, dy, dz = tpoints[k, p, 0] - q[0], tpoints[k, p, 1] - q[1], tpoints[k, p, 2] - q[2]
             d = dx * dx + dy * dy + dz * dz
             if d < best:
                 best, bp = d, p
@@ -174,12 +191,16 @@ def nearest_tree(tpoints, ids, nodes, split, k, q, guess, stack, bound) -> int:
 
 
 @njit(cache=True)
-def nearest_all(index, queries, out) -> None:
-    """``out`` [Q] = index of the point of set 0 of ``index`` nearest to each of ``queries`` [Q, 3]."""
+def nearest_all(index, queries, guess, out) -> None:
+    """``out`` [Q] = index of the point of set 0 of ``index`` nearest to each of ``queries`` [Q, 3]; ``guess`` [Q]:
+    a likely answer per query (e.g. the previous one in an iteration; −1: none), or [0] for none at all."""
     P, soa, centre, tpoints, ids, nodes, split = index
     stack, bound, dist, bits = make_scratch(P.shape[1])
-    for i in range(len(queries)):
+    q = np.empty(3)                                                             # a row view per query would cost
+    for i in range(len(queries)):                                               # reference counting
+        q[0], q[1], q[2] = queries[i, 0], queries[i, 1], queries[i, 2]
         if tpoints.shape[1]:
-            out[i] = nearest_tree(tpoints, ids, nodes, split, 0, queries[i], -1, stack, bound)
+            g = guess[i] if len(guess) else -1
+            out[i] = nearest_tree(tpoints, ids, nodes, split, 0, q, g, stack, bound)
         else:
-            out[i] = nearest_brute(soa, centre, 0, queries[i], dist, bits)
+            out[i] = nearest_brute(soa, centre, 0, q, dist, bits)

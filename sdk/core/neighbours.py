@@ -46,19 +46,23 @@ class NearestNeighbours:
     def __len__(self) -> int:
         return len(self.points)
 
-    def query(self, queries) -> tuple:
+    def query(self, queries, guess=None) -> tuple:
         """(distance [Q] float64, index [Q] int) of the nearest reference point of each query [Q, 3] (or [..., 3]:
-        the outputs then take its leading shape)."""
+        the outputs then take its leading shape). ``guess``: optional likely answers [Q] (e.g. the previous
+        iteration's), which speed up the compiled tree; the result is exact either way."""
         q = np.asarray(queries, np.float64)
-        i = self.nearest_indices(q)                                             # [Q]
+        i = self.nearest_indices(q, guess)                                      # [Q]
         diff = q.reshape(-1, 3) - self.points[i]                                # [Q, 3]
         return np.sqrt(np.einsum("qi,qi->q", diff, diff)).reshape(q.shape[:-1]), i.reshape(q.shape[:-1])
 
-    def nearest_indices(self, queries) -> np.ndarray:
-        """[Q] index of the nearest reference point of each query [Q, 3] (no distances)."""
+    def nearest_indices(self, queries, guess=None) -> np.ndarray:
+        """[Q] index of the nearest reference point of each query [Q, 3] (no distances); ``guess`` as in ``query``."""
         q = np.ascontiguousarray(np.asarray(queries, np.float64).reshape(-1, 3))
         if self.backend == "kdtree":
             return self._tree.query(q)[1]
+        g = np.zeros(0, np.int64) if guess is None else np.ascontiguousarray(guess, np.int64).reshape(-1)
+        if len(g) and len(g) != len(q):
+            raise InvalidPointsError(f"guess must give one index per query ({len(q)}), got {len(g)}")
         out = np.empty(len(q), np.int64)
-        nearest_all(self._index, q, out)
+        nearest_all(self._index, q, g, out)
         return out

@@ -8,10 +8,33 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from numba import njit
 
 from equipose.core.errors import TooFewPointsError
 
 __all__ = ["fit_plane_ransac", "find_support_plane"]
+
+
+@njit(cache=True)
+def _best_plane(sub, normals, offsets, threshold, confidence, chunk) -> int:
+    """Index of the hypothesis (``normals`` [I, 3], ``offsets`` [I] float32) with the most points of ``sub``
+    [3, S] float32 within ``threshold``, scored ``chunk`` at a time until a better, missed plane is unlikely."""
+    S = sub.shape[1]
+    best_count, j = -1, 0
+    for lo in range(0, len(normals), chunk):
+        hi = min(lo + chunk, len(normals))
+        for h in range(lo, hi):
+            n0, n1, n2, o = normals[h, 0], normals[h, 1], normals[h, 2], offsets[h]
+            count = 0
+            for i in range(S):
+                dist = o + sub[0, i] * n0 + sub[1, i] * n1 + sub[2, i] * n2             # float32, signed
+                count += abs(dist) < threshold
+            if count > best_count:
+                best_count, j = count, h
+        w = best_count / S                                                      # inlier fraction of the best so far
+        if w >= 1 or hi >= math.log(1 - confidence) / math.log(max(1e-12, 1 - w ** 3)):
+            break                                                               # P(missed better plane) < 1 − conf.
+    return j
 
 
 def fit_plane_ransac(points: np.ndarray, threshold: float = 0.01, iterations: int = 200, seed: int = 0,
@@ -29,7 +52,6 @@ def fit_plane_ransac(points: np.ndarray, threshold: float = 0.01, iterations: in
     if P < 3:
         raise TooFewPointsError(f"plane fit needs ≥ 3 points, got {P}")
     rng = np.random.default_rng(seed)
-    best_n, best_d, best_count = None, 0.0, -1
     tri = rng.integers(0, P, size=(iterations, 3))                              # [I, 3]
     a, b, c = points[tri[:, 0]], points[tri[:, 1]], points[tri[:, 2]]           # [I, 3] each
     normals = np.cross(b - a, c - a)                                            # [I, 3]
@@ -39,22 +61,9 @@ def fit_plane_ransac(points: np.ndarray, threshold: float = 0.01, iterations: in
     offsets = -np.einsum("ij,ij->i", normals, a)                                # [I']
     if len(normals) == 0:
         raise TooFewPointsError("plane fit failed: all sampled point triples are collinear")
-    sub = points[:: max(1, P // 1500)].astype(np.float32)                       # [S ≤ 3000, 3] scoring subset
-    sx, sy, sz = sub[:, :1], sub[:, 1:2], sub[:, 2:]                            # [S, 1] each
-    nf, of = normals.astype(np.float32), offsets.astype(np.float32)             # [I', 3], [I']
-    best_count, j, done = -1, 0, 0
-    for lo in range(0, len(nf), chunk):                                         # adaptive RANSAC: score in chunks,
-        n_c, o_c = nf[lo:lo + chunk], of[lo:lo + chunk]                         # stop once more hypotheses cannot
-        # signed distances by broadcasting, not a K=3 BLAS matmul (several times slower, worse on a loaded CPU)
-        dist = o_c + sx * n_c[:, 0] + sy * n_c[:, 1] + sz * n_c[:, 2]          # [S, c]
-        counts = np.count_nonzero(np.abs(dist) < threshold, axis=0)             # [c]
-        k = int(np.argmax(counts))
-        if counts[k] > best_count:
-            best_count, j = int(counts[k]), lo + k
-        done = lo + len(n_c)
-        w = best_count / len(sub)                                               # inlier fraction of the best so far
-        if w >= 1 or done >= math.log(1 - confidence) / math.log(max(1e-12, 1 - w ** 3)):
-            break                                                               # P(missed better plane) < 1 − conf.
+    sub = np.ascontiguousarray(points[:: max(1, P // 1500)].T, np.float32)     # [3, S ≤ 3000] scoring subset
+    j = _best_plane(sub, normals.astype(np.float32), offsets.astype(np.float32), np.float32(threshold),
+                    float(confidence), int(chunk))
     best_n, best_d = normals[j], offsets[j]
     for _ in range(2):                                                          # least-squares refinement
         inl = np.abs(points @ best_n + best_d) < threshold                      # [P]

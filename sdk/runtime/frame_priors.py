@@ -26,10 +26,12 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
+from numba import njit
 
 from equipose.core.errors import ConfigError, InvalidPointsError
 from equipose.core.geometry import axis_angle_deg, nearest_rotation, rotation_between
-from equipose.core.neighbours import NearestNeighbours
+from equipose.core.eigen import top_eigenvector
+from equipose.core.nearest import build_index, make_scratch, nearest_brute, nearest_tree
 from equipose.core.metadata import FRAME_PRIOR_STEPS
 from equipose.runtime.rest_facet import rest_facet_up
 
@@ -67,37 +69,70 @@ def _check(points, rotation) -> tuple:
     return P, R
 
 
+@njit(cache=True)
+def _mirror_iterations(index, n0, cos_max, iters, trim) -> tuple:
+    """The iterations of ``mirror_plane`` on the nearest-neighbour ``index`` of the cloud (its set 0):
+    (normal [3], offset, mean squared reflection residual)."""
+    P, soa, centre, tpoints, ids, nodes, split = index
+    X = P[0]                                                                   # [P, 3]
+    npts = len(X)
+    stack, bound, dist, bits = make_scratch(npts)
+    pair, d2 = np.full(npts, -1, np.int64), np.empty(npts)
+    q = np.empty(3)
+
+    def reflect_and_pair(n, d):
+        for i in range(npts):                                                 # reflection of X[i], its partner
+            s = 2.0 * (X[i, 0] * n[0] + X[i, 1] * n[1] + X[i, 2] * n[2] - d)
+            q[0], q[1], q[2] = X[i, 0] - s * n[0], X[i, 1] - s * n[1], X[i, 2] - s * n[2]
+            if tpoints.shape[1]:
+                j = nearest_tree(tpoints, ids, nodes, split, 0, q, pair[i], stack, bound)
+            else:
+                j = nearest_brute(soa, centre, 0, q, dist, bits)
+            pair[i] = j
+            d2[i] = (X[j, 0] - q[0]) ** 2 + (X[j, 1] - q[1]) ** 2 + (X[j, 2] - q[2]) ** 2
+
+    n = n0.copy()
+    d = X[:, 0].mean() * n0[0] + X[:, 1].mean() * n0[1] + X[:, 2].mean() * n0[2]
+    for _ in range(iters):
+        reflect_and_pair(n, d)
+        cut = np.quantile(np.sqrt(d2), trim)
+        S, mid, kept = np.zeros((3, 3)), np.zeros(3), 0
+        for i in range(npts):                                                 # the closest pairs a ↔ b
+            if np.sqrt(d2[i]) <= cut:
+                j = pair[i]
+                for a in range(3):
+                    mid[a] += 0.5 * (X[i, a] + X[j, a])
+                    for b in range(3):
+                        S[a, b] += (X[i, a] - X[j, a]) * (X[i, b] - X[j, b])
+                kept += 1
+        v = top_eigenvector(S)                                                # dominant pair direction
+        sign = v[0] * n[0] + v[1] * n[1] + v[2] * n[2]
+        cand = v * (-1.0 if sign < 0.0 else 1.0)                               # signed like n
+        if cand[0] * n0[0] + cand[1] * n0[1] + cand[2] * n0[2] < cos_max:
+            break
+        d_new = (mid[0] * cand[0] + mid[1] * cand[1] + mid[2] * cand[2]) / kept
+        if d_new == d and np.all(cand == n):                                  # a fixed point: every further
+            break                                                             # iteration repeats this one
+        n, d = cand, d_new
+    reflect_and_pair(n, d)
+    return n, d, d2.mean()
+
+
 def mirror_plane(points, normal, max_deg: float = MAX_DEG, iters: int = _MIRROR_ITERS) -> tuple:
     """Mirror plane of ``points`` near the plane through their centroid with unit normal ``normal`` [3].
 
     Each iteration reflects the cloud, pairs every point with its nearest neighbour among the reflections' sources
     (the closest ``_MIRROR_TRIM`` of pairs), and takes the new normal as the dominant direction of the pair differences
     and the offset from their midpoints. Stops before a step that would leave ``max_deg`` of ``normal``, and at a
-    fixed point (a step that returns the plane it started from).
+    fixed point (a step that returns the plane it started from). One compiled loop (``equipose.core.nearest``).
     Returns (unit normal [3] signed like ``normal``, offset d with the plane n·x = d, mean squared reflection
     residual).
     """
-    P = np.asarray(points, np.float64)                                       # [P, 3]
+    P = np.ascontiguousarray(points, np.float64)                             # [P, 3]
     n0 = np.asarray(normal, np.float64) / np.linalg.norm(normal)
-    tree = NearestNeighbours(P)
-    n, d = n0, float(P.mean(0) @ n0)
-    cos_max = np.cos(np.radians(max_deg))
-    for _ in range(iters):
-        reflected = P - 2.0 * (P @ n - d)[:, None] * n                       # [P, 3]
-        dist, j = tree.query(reflected)
-        keep = dist <= np.quantile(dist, _MIRROR_TRIM)
-        a, b = P[keep], P[j[keep]]                                           # mirror pairs a ↔ b
-        diff = a - b                                                         # [K, 3] along the normal
-        _, V = np.linalg.eigh(diff.T @ diff)
-        cand = V[:, 2] * np.sign(V[:, 2] @ n or 1.0)                         # dominant direction, signed like n
-        if cand @ n0 < cos_max:
-            break
-        d_new = float(((a + b) / 2.0).mean(0) @ cand)
-        if d_new == d and np.array_equal(cand, n):                           # a fixed point: every further
-            break                                                            # iteration repeats this one
-        n, d = cand, d_new
-    residual = float(np.mean(tree.query(P - 2.0 * (P @ n - d)[:, None] * n)[0] ** 2))
-    return n, d, residual
+    n, d, residual = _mirror_iterations(build_index(P[None]), n0, float(np.cos(np.radians(max_deg))), int(iters),
+                                        float(_MIRROR_TRIM))
+    return n, float(d), float(residual)
 
 
 def footprint_yaw(points, rotation, max_deg: float = MAX_DEG):

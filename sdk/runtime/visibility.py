@@ -78,11 +78,11 @@ def view_residuals(observed: np.ndarray, template: np.ndarray, rotations: np.nda
             or R.ndim != 3 or R.shape[1:] != (3, 3) or t.shape != (len(R), 3):
         raise InvalidPointsError(f"view_residuals needs observed [N, 3], template [M ≥ 4, 3], rotations [J, 3, 3] and "
                                  f"translations [J, 3], got {x.shape}, {Y.shape}, {R.shape}, {t.shape}")
-    obs_tree = NearestNeighbours(x)
+    obs_tree, template_tree = NearestNeighbours(x), NearestNeighbours(Y)
     out = np.empty(len(R))
     for j in range(len(R)):
         posed = Y @ R[j].T + t[j]                                               # [M, 3] = R y + t
-        d_obs, _ = NearestNeighbours(posed).query(x)                                      # [N] observed → template
+        d_obs, _ = template_tree.query((x - t[j]) @ R[j])                       # [N] observed → template (its frame)
         seen = posed[visible_mask(posed, viewpoint, exponent)]                  # [V, 3]
         d_seen, _ = obs_tree.query(seen)                                        # [V] visible template → observed
         out[j] = float(np.mean(d_obs ** 2) + np.mean(d_seen ** 2))

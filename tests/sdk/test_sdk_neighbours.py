@@ -102,3 +102,14 @@ def test_icp_holds_an_axis_on_a_direction(rng):
     assert np.allclose(np.linalg.det(R), 1.0) and res.min() < 1e-8
     with pytest.raises(errors.InvalidPointsError):
         icp_multi(x, Y, starts, np.zeros((4, 3)), which=[0, 0, 1, 0])            # only one template
+
+
+@pytest.mark.parametrize("n", [3, 4])
+def test_top_eigenvector_matches_lapack(rng, n):
+    from equipose.core.eigen import top_eigenvector
+    for _ in range(50):
+        A = rng.normal(size=(n, n))
+        A = A + A.T
+        w, V = np.linalg.eigh(A)
+        v = top_eigenvector(A)
+        assert abs(abs(v @ V[:, -1]) - 1.0) < 1e-10 and abs(np.linalg.norm(v) - 1.0) < 1e-12
