@@ -26,6 +26,7 @@ import math
 
 import numpy as np
 
+from equipose.core.neighbours import NearestNeighbours
 from equipose.runtime.stage import ObjectState, Stage, register_stage
 
 __all__ = ["ConfidenceStage", "FAR", "evidence", "logistic"]
@@ -45,11 +46,8 @@ def evidence(state: ObjectState) -> dict:
     rms = float(np.sqrt(np.mean(np.sum((shape - shape.mean(0)) ** 2, 1)))) or 1.0
     posed = shape @ state.rotation.T + state.translation                        # [M, 3] input frame
     x = np.asarray(state.points, np.float64)                                    # [N, 3]
-    c = posed.mean(0)                                                           # centred: float32 stays exact
-    xf, pf = (x - c).astype(np.float32), (posed - c).astype(np.float32)
-    d2 = (xf * xf).sum(1)[:, None] - 2.0 * xf @ pf.T + (pf * pf).sum(1)        # [N, M] squared distances
-    d_obs = np.sqrt(np.maximum(d2.min(1), 0.0))                                 # [N] input → shape
-    d_shape = np.sqrt(np.maximum(d2.min(0), 0.0))                               # [M] shape → input
+    d_obs, _ = NearestNeighbours(posed).query(x)                                # [N] input → shape
+    d_shape, _ = NearestNeighbours(x).query(posed)                              # [M] shape → input
     crop = state.crop or {}
     n_crop = crop.get("inliers", len(x))
     handle = state.extras.get("handle_visible")
