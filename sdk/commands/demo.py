@@ -39,6 +39,8 @@ def run(args) -> int:
     frame = next(iter(FolderSource(sample_path("table_mug"))))
     print(f"equipose demo: sample 'table_mug' (PCL tutorial scene, BSD-3), {frame.depth.shape[1]}×{frame.depth.shape[0]} "
           f"depth; model {model.name} ({est.category}, {est.num_points} points, scale {est.scale} m/unit)")
+    if est.kernels_s > 2.0:
+        print(f"compiled the geometry kernels in {est.kernels_s:.0f} s (first run after an install; cached from now on)")
     if est.random_init:
         print("NOTE: this model has RANDOM WEIGHTS (an export for tests or benchmarks). The pipeline is real; "
               "the rotations it prints are not.")

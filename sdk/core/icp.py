@@ -186,13 +186,13 @@ def icp_multi(observed: np.ndarray, template: np.ndarray, R0: np.ndarray, t0: np
     J = len(R)
     if R.shape != (J, 3, 3) or t.shape != (J, 3):
         raise InvalidPointsError(f"ICP starts must be R0 [J, 3, 3] and t0 [J, 3], got {R.shape}, {t.shape}")
-    which = np.zeros(J, np.int64) if which is None else np.asarray(which, np.int64)   # [J] template of each start
+    which = np.zeros(J, np.int64) if which is None else np.ascontiguousarray(which, np.int64)   # [J] each start's
     if which.shape != (J,) or (J and (which.min() < 0 or which.max() >= len(Y))):
         raise InvalidPointsError(f"ICP which must index the {len(Y)} templates for each of the {J} starts")
     axis, up = -1, np.zeros(3)
     if hold is not None:
         axis, up = int(hold[0]), np.asarray(hold[1], np.float64)
-        up = up / np.linalg.norm(up)
+        up = np.ascontiguousarray(up / np.linalg.norm(up))
     res = np.zeros(J)
     if J:
         _icp_loop(x, Y, which, R, t, int(iters), bool(bidirectional), axis, up, res)

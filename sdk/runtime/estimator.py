@@ -18,6 +18,7 @@ from equipose.core.errors import ConfigError, EquiposeError, InvalidPointsError,
 from equipose.core.metadata import decode_metadata
 from equipose.core.presets import ModelConfig, total_macs
 from equipose.runtime.instance import INSTANCE_ITERS, build_instance_model
+from equipose.runtime.kernels import load_kernels
 from equipose.runtime.pipeline import Pipeline
 from equipose.runtime.profiles import merge_stage_options, profile_options
 from equipose.runtime.result import FrameError, PoseResult
@@ -83,6 +84,7 @@ class PoseEstimator:
         if threads is not None and (not isinstance(threads, int) or threads < 0):
             raise ConfigError(f"threads must be None or a non-negative int, got {threads!r}")
         self.path = path
+        self.kernels_s = load_kernels()                 # compiled geometry: compiled or loaded before any frame
         self.session = open_session(path, threads)
         props = dict(self.session.get_modelmeta().custom_metadata_map)
         self.metadata = decode_metadata(props, source=path.name)
