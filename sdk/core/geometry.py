@@ -65,35 +65,36 @@ def backproject(depth_m: np.ndarray, K: np.ndarray, mask: np.ndarray | None = No
     return np.stack([x, y, z], 1).astype(np.float32), np.stack([rows, cols], 1)
 
 
-@njit(cache=True, fastmath={"nnan", "nsz", "reassoc", "contract"})
+@njit(cache=True)
 def _farthest_orders(p, n, starts):
     """FPS loop of ``farthest_point_orders``: ``p`` [3, P] float32 centred (coordinates along the fast axis),
-    ``starts`` [S] → indices [S, n ≤ P]. Each step updates every point's squared distance to the set and takes the
-    first farthest."""
+    ``starts`` [S] → indices [S, n ≤ P]. Each step writes the float32 squared distances to the newest point, then
+    updates every point's distance to the set and takes the largest on their int32 bit patterns (non-negative
+    floats order as their bits), two loops the compiler vectorises; among equally far points the first wins."""
     P, S = p.shape[1], len(starts)
     px, py, pz = p[0], p[1], p[2]                                               # [P] each
     idx = np.empty((S, n), np.int64)
-    d = np.empty(P, np.float32)
+    new = np.empty(P, np.float32)
+    new_bits = new.view(np.int32)
+    d = np.empty(P, np.int32)                                                   # bits of the distance to the set
     for s in range(S):
         j = starts[s]
         idx[s, 0] = j
-        for i in range(P):
-            d[i] = np.float32(3.0e38)
-        for k in range(1, n + 1):
+        d[:] = 0x7F7FFFFF                                                       # the largest finite float32
+        for k in range(1, n):
             x, y, z = px[j], py[j], pz[j]
-            if k == n:
-                break
-            best = np.float32(-1.0)
-            for i in range(P):                                                  # vectorised: update and max
+            for i in range(P):
                 dx, dy, dz = px[i] - x, py[i] - y, pz[i] - z
-                e = min(d[i], dx * dx + dy * dy + dz * dz)
+                new[i] = dx * dx + dy * dy + dz * dz
+            best = np.int32(-1)
+            for i in range(P):
+                e = d[i] if d[i] < new_bits[i] else new_bits[i]
                 d[i] = e
-                best = max(best, e)
-            bi = 0
-            while d[bi] != best:                                                # its first index
-                bi += 1
-            idx[s, k] = bi
-            j = bi
+                best = e if e > best else best
+            j = 0
+            while d[j] != best:
+                j += 1
+            idx[s, k] = j
     return idx
 
 
