@@ -80,6 +80,16 @@ def _hold_axis(R, axis, up):
     R[:, :] = T @ R
 
 
+@njit(cache=True, inline="always")
+def _add_pair(S, ss, ds, Y, m, x, n):
+    """Accumulate the pair template point Y[m] ↔ observed point x[n]: S += s dᵀ, ss += s, ds += d."""
+    for a in range(3):
+        ss[a] += Y[m, a]
+        ds[a] += x[n, a]
+        for b in range(3):
+            S[a, b] += Y[m, a] * x[n, b]
+
+
 @njit(cache=True)
 def _icp_loop(x, Y, which, R, t, iters, bidirectional, hold_axis, up, res):
     """The ICP of every start, in place on R [J, 3, 3], t [J, 3], res [J] (see ``icp_multi``)."""
@@ -114,11 +124,7 @@ def _icp_loop(x, Y, which, R, t, iters, bidirectional, hold_axis, up, res):
                 d2 = (Yw[m, 0] - q[0]) ** 2 + (Yw[m, 1] - q[1]) ** 2 + (Yw[m, 2] - q[2]) ** 2
                 last[n] = m
                 r1 += d2
-                for a in range(3):
-                    ss[a] += Yw[m, a]
-                    ds[a] += x[n, a]
-                    for b in range(3):
-                        S[a, b] += Yw[m, a] * x[n, b]
+                _add_pair(S, ss, ds, Yw, m, x, n)
             r = r1 / N
             if bidirectional:                                                   # template → observed
                 r2 = 0.0
@@ -134,11 +140,7 @@ def _icp_loop(x, Y, which, R, t, iters, bidirectional, hold_axis, up, res):
                     d2 = (x[n, 0] - q[0]) ** 2 + (x[n, 1] - q[1]) ** 2 + (x[n, 2] - q[2]) ** 2
                     last[N + m] = n
                     r2 += d2
-                    for a in range(3):
-                        ss[a] += Yw[m, a]
-                        ds[a] += x[n, a]
-                        for b in range(3):
-                            S[a, b] += Yw[m, a] * x[n, b]
+                    _add_pair(S, ss, ds, Yw, m, x, n)
                 r += r2 / M
             res[j] = r
             if it == iters:
