@@ -37,6 +37,29 @@ def _best_plane(sub, normals, offsets, threshold, confidence, chunk) -> int:
     return j
 
 
+@njit(cache=True)
+def _inlier_moments(points, n, d, threshold) -> tuple:
+    """(count, centroid [3], scatter Σ (q − c)(q − c)ᵀ [3, 3]) of the points [P, 3] within ``threshold`` of the
+    plane n · x + d = 0 (two passes: centroid, then scatter)."""
+    c = np.zeros(3)
+    count = 0
+    for i in range(len(points)):
+        if abs(points[i, 0] * n[0] + points[i, 1] * n[1] + points[i, 2] * n[2] + d) < threshold:
+            count += 1
+            for a in range(3):
+                c[a] += points[i, a]
+    S = np.zeros((3, 3))
+    if count == 0:
+        return count, c, S
+    c /= count
+    for i in range(len(points)):
+        if abs(points[i, 0] * n[0] + points[i, 1] * n[1] + points[i, 2] * n[2] + d) < threshold:
+            for a in range(3):
+                for b in range(3):
+                    S[a, b] += (points[i, a] - c[a]) * (points[i, b] - c[b])
+    return count, c, S
+
+
 def fit_plane_ransac(points: np.ndarray, threshold: float = 0.01, iterations: int = 200, seed: int = 0,
                      confidence: float = 0.999, chunk: int = 32):
     """RANSAC plane fit with a least-squares refit on the inliers.
@@ -65,14 +88,12 @@ def fit_plane_ransac(points: np.ndarray, threshold: float = 0.01, iterations: in
     j = _best_plane(sub, normals.astype(np.float32), offsets.astype(np.float32), np.float32(threshold),
                     float(confidence), int(chunk))
     best_n, best_d = normals[j], offsets[j]
+    P64 = np.ascontiguousarray(points, np.float64)
     for _ in range(2):                                                          # least-squares refinement
-        inl = np.abs(points @ best_n + best_d) < threshold                      # [P]
-        if inl.sum() < 3:
+        count, c0, scatter = _inlier_moments(P64, best_n, float(best_d), float(threshold))
+        if count < 3:
             break
-        q = points[inl]
-        c0 = q.mean(0)
-        qc = q - c0                                                             # [P', 3]
-        _, vecs = np.linalg.eigh(qc.T @ qc)                                     # 3×3 scatter, ascending eigenvalues
+        _, vecs = np.linalg.eigh(scatter)                                       # 3×3 scatter, ascending eigenvalues
         best_n = vecs[:, 0]                                                     # least-variance direction
         best_d = -float(best_n @ c0)
     if best_d < 0:
