@@ -62,7 +62,8 @@ def _fit_rotation(H, R):
 @njit(cache=True)
 def _hold_axis(R, axis, up):
     """Turn R [3, 3] in place by the smallest rotation that takes its column ``axis`` onto the unit ``up`` [3]
-    (for the opposite direction: the half turn about an axis perpendicular to the column)."""
+    (for the opposite direction: the half turn about an axis perpendicular to the column): what
+    ``equipose.core.geometry.rotation_between`` computes, inside the compiled loop."""
     a = R[:, axis].copy()
     a /= np.sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2])
     v = np.array([a[1] * up[2] - a[2] * up[1], a[2] * up[0] - a[0] * up[2], a[0] * up[1] - a[1] * up[0]])
@@ -98,7 +99,8 @@ def _icp_loop(x, Y, which, R, t, iters, bidirectional, hold_axis, up, res):
     stack, bound, dist, bits = make_scratch(max(N, M))
     pairs, last = np.empty(K, np.int64), np.empty(K, np.int64)
     _, soa, centre, tpoints, ids, nodes, split = build_index(Y)                # templates, unpacked once
-    _, xsoa, xcentre, xtpoints, xids, xnodes, xsplit = build_index(x.reshape(1, N, 3) if bidirectional else Y[:1])
+    xs = x.reshape(1, N, 3) if bidirectional else np.ascontiguousarray(x[:1]).reshape(1, 1, 3)   # one-point stand-in
+    _, xsoa, xcentre, xtpoints, xids, xnodes, xsplit = build_index(xs)          # when only observed → template
     tree, xtree = tpoints.shape[1] > 0, xtpoints.shape[1] > 0
     H, q = np.empty((3, 3)), np.empty(3)
     for j in range(R.shape[0]):
