@@ -2,10 +2,12 @@
 
 Convention:
     Input ``points`` float32 [batch, N, 3], model units (metres / ``scale``), FPS-ordered; N fixed per model
-    (metadata ``num_points``), batch dynamic. Outputs (DESIGN.md "The ONNX contract"):
+    (metadata ``num_points``), batch dynamic. Outputs (DESIGN.md "The ONNX contract", format 2):
     ``canonical_shape`` [batch, M, 3], ``hypothesis_rotations`` [batch, 60, 3, 3] (act on column vectors),
-    ``hypothesis_translations`` [batch, 60, 3] (model units, input frame), ``hypothesis_scores`` [batch, 60]
-    (lower is better). Hypothesis j is the group rotation ``icosahedral.ANCHORS[j]`` (metadata ``anchors``).
+    ``hypothesis_translations`` [batch, 60, 3] (model units, input frame). Hypothesis j is the group rotation
+    ``icosahedral.ANCHORS[j]`` (metadata ``anchors``). The hypothesis scores are not in the graph: the runtime
+    computes them (``equipose.core.scores``, 4–7× faster than onnxruntime's MatMuls); ``strip_graph_scores`` turns a
+    format-1 file, whose graph still outputs them, into a format-2 one with the same network.
     The graph uses the default ONNX domain only; the group tables are constant int64 ``Gather`` indices.
 
 Uses the torch 2.13 ``torch.export``-based exporter (``dynamo=True``, needs onnxscript) with weights inlined.
@@ -25,18 +27,19 @@ import numpy as np
 from equipose.core.errors import ConfigError, ModelFormatError
 from equipose.core.metadata import encode_metadata
 
-__all__ = ["DEFAULT_OPSET", "OUTPUT_NAMES", "INPUT_NAME", "export_model", "export_random_model", "export_checkpoint", "update_metadata",
-           "calibration_arrays", "op_type_counts"]
+__all__ = ["DEFAULT_OPSET", "OUTPUT_NAMES", "INPUT_NAME", "export_model", "export_random_model", "export_checkpoint",
+           "update_metadata", "strip_graph_scores", "calibration_arrays", "op_type_counts"]
 
 DEFAULT_OPSET = 20
 INPUT_NAME = "points"
-OUTPUT_NAMES = ("canonical_shape", "hypothesis_rotations", "hypothesis_translations", "hypothesis_scores")
+OUTPUT_NAMES = ("canonical_shape", "hypothesis_rotations", "hypothesis_translations")     # the graph's outputs
+SCORES = "hypothesis_scores"                                                               # computed by the runtime
 MAX_BATCH = 4096          # upper bound declared for the dynamic batch dimension
 PARITY_ATOL = 1e-4        # export-time self check: ORT vs torch on the example batch
 
 
-def _contract_module(model):
-    """Wrap ``model`` so that forward returns the four contract outputs as a tuple (what the exporter traces)."""
+def _contract_module(model, names=OUTPUT_NAMES):
+    """Wrap ``model`` so that forward returns the outputs ``names`` as a tuple (what the exporter traces)."""
     import torch
 
     class _Contract(torch.nn.Module):
@@ -46,7 +49,7 @@ def _contract_module(model):
 
         def forward(self, points):                       # points [B, N, 3]
             out = self.net(points)
-            return tuple(out[k] for k in OUTPUT_NAMES)
+            return tuple(out[k] for k in names)
 
     return _Contract(model).eval()
 
@@ -117,7 +120,7 @@ def _write_atomic(model_proto, path: pathlib.Path):
 def export_model(model, path, *, category: str, scale: float, symmetry: str = "none", calibration=None, handle=None,
                  shape_prior: str | None = None,
                  random_init: bool = False, training: dict | None = None, metrics: dict | None = None,
-                 opset: int = DEFAULT_OPSET, verify: bool = True) -> pathlib.Path:
+                 opset: int = DEFAULT_OPSET, verify: bool = True, scores_in_graph: bool = False) -> pathlib.Path:
     """Export an ``EquiPoseNet`` to a single self-describing ONNX file and return its path.
 
     Args:
@@ -128,6 +131,8 @@ def export_model(model, path, *, category: str, scale: float, symmetry: str = "n
             training, metrics: written to ``metadata_props`` via ``equipose.core.metadata.encode_metadata``.
         opset: ONNX opset of the default domain.
         verify: run the file once in onnxruntime on the export example and compare with torch (max abs ≤ 1e-4).
+        scores_in_graph: also output ``hypothesis_scores`` from the graph (format 1, for readers of the ONNX file
+            that do not compute them; the SDK runs either).
     Raises:
         ConfigError / MetadataError for bad arguments; RuntimeError if the exported graph disagrees with torch.
     """
@@ -157,20 +162,23 @@ def export_model(model, path, *, category: str, scale: float, symmetry: str = "n
     path.parent.mkdir(parents=True, exist_ok=True)
 
     was_training = model.training
-    wrapper = _contract_module(model)                                     # sets eval mode on the net
+    names = OUTPUT_NAMES + ((SCORES,) if scores_in_graph else ())
+    if scores_in_graph:
+        meta["equipose_format"] = "1"
+    wrapper = _contract_module(model, names)                              # sets eval mode on the net
     gen = torch.Generator().manual_seed(1234)
     example = torch.randn(2, cfg.num_points, 3, generator=gen) * 0.2       # [2, N, 3]; batch 2 keeps the dim symbolic
     batch = torch.export.Dim("batch", min=1, max=MAX_BATCH)
     try:
         with _quiet_exporter(), torch.no_grad():
             program = torch.onnx.export(wrapper, (example,), None, dynamo=True, external_data=False,
-                                        input_names=[INPUT_NAME], output_names=list(OUTPUT_NAMES),
+                                        input_names=[INPUT_NAME], output_names=list(names),
                                         dynamic_shapes=({0: batch},), opset_version=int(opset), optimize=True)
         proto = program.model_proto
     finally:
         model.train(was_training)
     proto.doc_string = (f"equipose {cfg.name} model for category {category!r}: points [batch, {cfg.num_points}, 3] "
-                        "(model units) -> canonical shape + 60 pose hypotheses with chamfer scores")
+                        "(model units) -> canonical shape + 60 pose hypotheses")
     _drop_initializer_value_info(proto)
     del proto.metadata_props[:]
     for k, v in meta.items():
@@ -183,15 +191,21 @@ def export_model(model, path, *, category: str, scale: float, symmetry: str = "n
 
 
 def _verify_parity(wrapper, path: pathlib.Path, example):
-    """Run the written file in onnxruntime on ``example`` [B, N, 3] and compare all outputs with torch."""
+    """Run the written file in onnxruntime on ``example`` [B, N, 3] and compare all outputs with torch, the hypothesis
+    scores as the runtime computes them (``equipose.runtime.session.with_scores``) with the network's own."""
     import onnxruntime as ort
     import torch
 
+    from equipose.runtime.session import with_scores
+
+    net = wrapper.net
     sess = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"])
-    got = sess.run(list(OUTPUT_NAMES), {INPUT_NAME: example.numpy()})
+    names = [o.name for o in sess.get_outputs()]
+    got = with_scores(dict(zip(names, sess.run(names, {INPUT_NAME: example.numpy()}))),
+                      example.numpy(), partial=net.partial, score_points=net.config.score_points)
     with torch.no_grad():
-        ref = [t.numpy() for t in wrapper(example)]
-    errs = {n: float(np.abs(a - b).max()) for n, a, b in zip(OUTPUT_NAMES, got, ref)}
+        ref = {k: v.numpy() for k, v in net(example).items()}
+    errs = {n: float(np.abs(got[n] - ref[n]).max()) for n in OUTPUT_NAMES + (SCORES,)}
     bad = {n: e for n, e in errs.items() if not e <= PARITY_ATOL}
     if bad:
         raise RuntimeError(f"exported {path} disagrees with torch beyond {PARITY_ATOL}: {bad}")
@@ -262,6 +276,41 @@ def export_checkpoint(checkpoint, path, *, category: str | None = None, scale: f
                         scale=scale if scale is not None else ckpt.get("scale", 1.0),
                         symmetry=ckpt.get("symmetry", "none"), calibration=ckpt.get("calibration"),
                         random_init=False, training=training, metrics=ckpt.get("metrics") or {}, **kwargs)
+
+
+def strip_graph_scores(path, out=None) -> pathlib.Path:
+    """A format-1 model file (its graph outputs ``hypothesis_scores``) → format 2: the same graph without the score
+    nodes, every metadata entry kept, ``equipose_format`` set to 2. Written to ``out`` (default: in place); a
+    format-2 file is copied unchanged. Works on fp32 and int8 files alike (the score nodes hold no weights)."""
+    import onnx
+    from onnx.utils import Extractor
+
+    from equipose.core.metadata import FORMAT_VERSION
+
+    path = pathlib.Path(path)
+    out = path if out is None else pathlib.Path(out)
+    try:
+        proto = onnx.load(str(path))
+    except Exception as e:                                                 # protobuf decode errors, missing file
+        raise ModelFormatError(f"{path} is not a readable ONNX model: {e}") from None
+    outputs = [o.name for o in proto.graph.output]
+    if not set(OUTPUT_NAMES) <= set(outputs):
+        raise ModelFormatError(f"{path}: outputs {outputs} lack {OUTPUT_NAMES}; not an equipose model")
+    if SCORES in outputs:
+        meta = {p.key: p.value for p in proto.metadata_props}
+        sub = Extractor(proto).extract_model([INPUT_NAME], list(OUTPUT_NAMES))   # the nodes the three outputs need
+        for field in ("ir_version", "producer_name", "producer_version", "doc_string"):
+            setattr(sub, field, getattr(proto, field))
+        del sub.opset_import[:]
+        sub.opset_import.extend(proto.opset_import)
+        meta["equipose_format"] = str(FORMAT_VERSION)
+        for k, v in meta.items():
+            sub.metadata_props.add(key=k, value=v)
+        onnx.checker.check_model(sub, full_check=True)
+        proto = sub
+    out.parent.mkdir(parents=True, exist_ok=True)
+    _write_atomic(proto, out)
+    return out
 
 
 def update_metadata(path, **values) -> pathlib.Path:

@@ -109,12 +109,22 @@ def torch_layer_fn(layer_fwd) -> ModelFn:
 
 
 def onnx_model_fn(session) -> ModelFn:
-    """Adapt an ``onnxruntime.InferenceSession`` of an equipose model to a numpy model function."""
+    """Adapt an ``onnxruntime.InferenceSession`` of an equipose model to a numpy model function (the hypothesis
+    scores computed as the runtime does when the graph has none, format 2)."""
+    import json
+
+    from equipose.runtime.session import with_scores
+
     names = [o.name for o in session.get_outputs()]
     inp = session.get_inputs()[0].name
+    meta = session.get_modelmeta().custom_metadata_map
+    partial = meta.get("partial") == "true"
+    score_points = int(json.loads(meta.get("model_config", "{}")).get("score_points", 0))
 
     def fn(points):
-        return dict(zip(names, session.run(None, {inp: np.ascontiguousarray(points, dtype=np.float32)})))
+        x = np.ascontiguousarray(points, dtype=np.float32)
+        return with_scores(dict(zip(names, session.run(None, {inp: x}))), x, partial=partial,
+                           score_points=score_points)
 
     return fn
 

@@ -12,14 +12,16 @@ ort = pytest.importorskip("onnxruntime")
 from equipose.core import icosahedral as I  # noqa: E402
 from equipose.cli import main as cli_main  # noqa: E402
 from equipose.errors import ConfigError, MetadataError, ModelFormatError  # noqa: E402
-from equipose.export import export_checkpoint, export_model, export_random_model, int8_path_for  # noqa: E402
+from equipose.export import (export_checkpoint, export_model, export_random_model, int8_path_for,  # noqa: E402
+                              strip_graph_scores)
 from equipose.core.metadata import REQUIRED_KEYS, decode_metadata  # noqa: E402
 from equipose.core.presets import get_preset  # noqa: E402
 from equipose.testing import assert_equivariant, onnx_model_fn  # noqa: E402
 from equipose.train.fitting.checkpoint import save_checkpoint  # noqa: E402
 from equipose.train.network.model import EquiPoseNet  # noqa: E402
 
-OUTPUTS = ("canonical_shape", "hypothesis_rotations", "hypothesis_translations", "hypothesis_scores")
+OUTPUTS = ("canonical_shape", "hypothesis_rotations", "hypothesis_translations")             # the graph's (format 2)
+ALL_OUTPUTS = OUTPUTS + ("hypothesis_scores",)                                              # with the runtime's scores
 # Every op the exporter may emit. Deliberately absent: Loop, Scan, If, GatherND, GatherElements, custom domains.
 ALLOWED_OPS = {"InstanceNormalization", 
     "Add", "BatchNormalization", "Cast", "Clip", "Concat", "Constant", "Div", "Expand", "Gather", "Gemm",
@@ -43,7 +45,13 @@ def _session(path):
 def _torch_outputs(model, x):
     with torch.no_grad():
         out = model(torch.from_numpy(x))
-    return [out[k].numpy() for k in OUTPUTS]
+    return [out[k].numpy() for k in ALL_OUTPUTS]
+
+
+def _onnx_outputs(path, x):
+    """The four outputs as the SDK sees them: the graph's and the runtime's hypothesis scores."""
+    out = onnx_model_fn(_session(path))(x)
+    return [out[k] for k in ALL_OUTPUTS]
 
 
 @pytest.fixture(scope="module")
@@ -93,7 +101,7 @@ def test_checker_and_shape_inference(tiny_ckpt):
     assert inferred.graph.input[0].type.tensor_type.elem_type == onnx.TensorProto.FLOAT
     assert [v.name for v in inferred.graph.output] == list(OUTPUTS)
     assert [dims(v) for v in inferred.graph.output] == [
-        ["batch", cfg.num_canonical_points, 3], ["batch", 60, 3, 3], ["batch", 60, 3], ["batch", 60]]
+        ["batch", cfg.num_canonical_points, 3], ["batch", 60, 3, 3], ["batch", 60, 3]]
 
 
 def _check_graph_rules(path, cfg):
@@ -145,8 +153,8 @@ def test_allowlist_rejects_forbidden_ops(tiny_ckpt, tmp_path):
 def test_parity_tiny_partial_and_complete(tiny_ckpt, tiny_cli, rng):
     for model, path in (tiny_ckpt, tiny_cli):
         x = _cloud(rng, 2, model.num_points)
-        got = _session(path).run(list(OUTPUTS), {"points": x})
-        for name, a, b in zip(OUTPUTS, got, _torch_outputs(model, x)):
+        got = _onnx_outputs(path, x)
+        for name, a, b in zip(ALL_OUTPUTS, got, _torch_outputs(model, x)):
             assert a.shape == b.shape, name
             assert np.abs(a - b).max() <= 1e-4, (path.name, name, float(np.abs(a - b).max()))
 
@@ -158,8 +166,8 @@ def test_parity_larger_presets(preset, tmp_path, rng):
     torch.manual_seed(model_seed)
     model = EquiPoseNet(preset, partial=True).eval()
     x = _cloud(rng, 1, model.num_points)
-    got = _session(path).run(list(OUTPUTS), {"points": x})
-    for name, a, b in zip(OUTPUTS, got, _torch_outputs(model, x)):
+    got = _onnx_outputs(path, x)
+    for name, a, b in zip(ALL_OUTPUTS, got, _torch_outputs(model, x)):
         assert np.abs(a - b).max() <= 1e-4, (preset, name, float(np.abs(a - b).max()))
     _check_graph_rules(path, get_preset(preset))
     meta = decode_metadata(_session(path).get_modelmeta().custom_metadata_map)
@@ -219,6 +227,36 @@ def test_dynamic_batch(tiny_ckpt, rng):
         np.testing.assert_allclose(three[k], np.concatenate([o[k] for o in one]), atol=1e-5, err_msg=name)
     with pytest.raises(Exception):                           # N is fixed per model
         sess.run(None, {"points": _cloud(rng, 1, 128)})
+
+
+@pytest.mark.parametrize("partial", [True, False])
+def test_format1_graph_scores_and_their_removal(partial, tmp_path, rng):
+    """A format-1 file (scores in the graph) reads; ``strip_graph_scores`` makes it format 2 with the same network,
+    and the runtime's scores equal the graph's."""
+    from equipose import PoseEstimator
+
+    torch.manual_seed(5)
+    model = EquiPoseNet("tiny", partial=partial).eval()
+    old = export_model(model, tmp_path / "f1.onnx", category="bowl", scale=0.3, scores_in_graph=True)
+    new = strip_graph_scores(old, tmp_path / "f2.onnx")
+    assert [o.name for o in _session(old).get_outputs()] == list(ALL_OUTPUTS)
+    assert [o.name for o in _session(new).get_outputs()] == list(OUTPUTS)
+    meta_old = dict(_session(old).get_modelmeta().custom_metadata_map)
+    meta_new = dict(_session(new).get_modelmeta().custom_metadata_map)
+    assert meta_old.pop("equipose_format") == "1" and meta_new.pop("equipose_format") == "2"
+    assert meta_old == meta_new
+    x = _cloud(rng, 3, model.num_points)
+    graph = _session(old).run(list(ALL_OUTPUTS), {"points": x})
+    runtime = _onnx_outputs(new, x)
+    for name, a, b in zip(ALL_OUTPUTS, graph, runtime):
+        np.testing.assert_allclose(b, a, atol=1e-5, err_msg=name)
+    assert np.array_equal(graph[3].argmin(1), runtime[3].argmin(1))
+    for name, a, b in zip(ALL_OUTPUTS, runtime, _torch_outputs(model, x)):
+        assert np.abs(a - b).max() <= 1e-4, name
+    scene = _cloud(rng, 1, 600)[0] * 0.3 + [0.0, 0.0, 0.8]
+    r_old, r_new = (PoseEstimator(p, threads=1).predict_points(scene) for p in (old, new))
+    np.testing.assert_allclose(r_new.rotation, r_old.rotation, atol=1e-6)
+    np.testing.assert_allclose(r_new.translation, r_old.translation, atol=1e-6)
 
 
 def test_int8_copy(tiny_cli, rng):

@@ -26,7 +26,9 @@ def _inputs(n, batch=3, seed=0):
 
 def _max_diff(model, onnx_path, x):
     import onnxruntime as ort
-    got = ort.InferenceSession(str(onnx_path), providers=["CPUExecutionProvider"]).run(list(OUTPUTS), {"points": x})
+    from equipose.testing import onnx_model_fn
+    out = onnx_model_fn(ort.InferenceSession(str(onnx_path), providers=["CPUExecutionProvider"]))(x)
+    got = [out[k] for k in OUTPUTS]
     with torch.no_grad():
         ref = model(torch.from_numpy(x))
     return max(float(np.abs(ref[k].numpy() - g).max()) for k, g in zip(OUTPUTS, got)), ref, got

@@ -4,7 +4,8 @@ Written by ``equipose.export`` into ``ModelProto.metadata_props``; read by the S
 ``custom_metadata_map``. Torch-free.
 
 Keys (all values are strings):
-    equipose_format         format version, currently "1"
+    equipose_format         format version, currently "2" (the graph outputs no hypothesis scores: the runtime
+                            computes them, ``equipose.core.scores``); "1" files, whose graphs output them, still read
     equipose_version        package version that wrote the file
     category                e.g. "airplane", "mug"
     preset                  preset name (``equipose.core.presets``)
@@ -53,10 +54,11 @@ import numpy as np
 from equipose.core import icosahedral
 from equipose.core.errors import MetadataError, ModelVersionError
 
-__all__ = ["FORMAT_VERSION", "REQUIRED_KEYS", "FRAME_PRIOR_STEPS", "CONFIDENCE_FEATURES", "MAX_COPIES", "MAX_POLISH", "MAX_DENSIFY",
+__all__ = ["FORMAT_VERSION", "READABLE_FORMATS", "REQUIRED_KEYS", "FRAME_PRIOR_STEPS", "CONFIDENCE_FEATURES", "MAX_COPIES", "MAX_POLISH", "MAX_DENSIFY",
            "encode_metadata", "decode_metadata", "encode_turn_classifier"]
 
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
+READABLE_FORMATS = (1, 2)                                  # 1: hypothesis_scores computed in the graph
 FRAME_PRIOR_STEPS = ("rest", "mirror", "footprint")       # equipose.runtime.frame_priors
 CONFIDENCE_FEATURES = ("margin", "flip_margin", "residual", "outliers", "coverage", "occlusion", "log_points",
                        "ambiguous", "up_given", "handle_seen", "handle_share")   # equipose.runtime.stages.confidence
@@ -252,9 +254,10 @@ def decode_metadata(props: dict, source: str = "model") -> dict:
         version = int(props["equipose_format"])
     except ValueError:
         raise MetadataError(f"{source}: equipose_format {props['equipose_format']!r} is not an integer") from None
-    if version != FORMAT_VERSION:
-        raise ModelVersionError(f"{source} has equipose metadata format {version}, this SDK reads format "
-                                f"{FORMAT_VERSION}; re-export the model with this equipose version or upgrade equipose")
+    if version not in READABLE_FORMATS:
+        raise ModelVersionError(f"{source} has equipose metadata format {version}, this SDK reads formats "
+                                f"{', '.join(map(str, READABLE_FORMATS))}; re-export the model with this equipose "
+                                "version or upgrade equipose")
     missing = [k for k in REQUIRED_KEYS if k not in props]
     if missing:
         raise MetadataError(f"{source} lacks required metadata key(s) {', '.join(missing)}; re-export it with "

@@ -1,7 +1,9 @@
 """onnxruntime sessions of equipose models: opening, I/O checks, metadata without a full estimator.
 
-Convention: an equipose model has one input ``points`` [batch, N, 3] float32 (model units, FPS-ordered) and the four
-outputs of ``OUTPUT_NAMES``; its equipose metadata lives in the ONNX custom metadata map.
+Convention: an equipose model has one input ``points`` [batch, N, 3] float32 (model units, FPS-ordered) and the
+outputs ``GRAPH_OUTPUTS``; format-1 files also output ``hypothesis_scores``, which the runtime otherwise computes
+(``equipose.core.scores``), so a run always yields the four ``OUTPUT_NAMES``. The equipose metadata lives in the ONNX
+custom metadata map.
 """
 from __future__ import annotations
 
@@ -11,11 +13,15 @@ import numpy as np
 
 from equipose.core.errors import ModelFormatError
 from equipose.core.model_file import read_metadata  # noqa: F401  (re-exported: reading metadata needs no session)
+from equipose.core.scores import hypothesis_scores
 
-__all__ = ["INPUT_NAME", "OUTPUT_NAMES", "RUN_CHUNK", "open_session", "check_io", "read_metadata", "run_in_chunks"]
+__all__ = ["INPUT_NAME", "GRAPH_OUTPUTS", "SCORES", "OUTPUT_NAMES", "RUN_CHUNK", "open_session", "check_io",
+           "read_metadata", "run_in_chunks", "with_scores"]
 
 INPUT_NAME = "points"
-OUTPUT_NAMES = ("canonical_shape", "hypothesis_rotations", "hypothesis_translations", "hypothesis_scores")
+GRAPH_OUTPUTS = ("canonical_shape", "hypothesis_rotations", "hypothesis_translations")   # every model's graph
+SCORES = "hypothesis_scores"                                                               # in format-1 graphs only
+OUTPUT_NAMES = GRAPH_OUTPUTS + (SCORES,)
 RUN_CHUNK = 32              # network inputs per onnxruntime run: larger batches (objects × copies) run in chunks, which
                             # bounds memory (an edge model needs ≈ 8 MB of activations per input)
 
@@ -57,7 +63,7 @@ def check_io(session, name: str, num_points: int):
     if len(ins) != 1 or ins[0].name != INPUT_NAME:
         raise ModelFormatError(f"{name}: expected one input named {INPUT_NAME!r}, got {[i.name for i in ins]}; "
                                "not an equipose model")
-    missing = [o for o in OUTPUT_NAMES if o not in outs]
+    missing = [o for o in GRAPH_OUTPUTS if o not in outs]
     if missing:
         raise ModelFormatError(f"{name}: outputs {missing} missing (has {sorted(outs)}); not an equipose model")
     shape = ins[0].shape                                                        # [batch, N, 3]
@@ -66,3 +72,15 @@ def check_io(session, name: str, num_points: int):
                                "from its metadata; re-export the model")
     return shape[0] if isinstance(shape[0], int) else None
 
+
+
+def with_scores(outputs: dict, points: np.ndarray, *, partial: bool, score_points: int) -> dict:
+    """``outputs`` of a graph run on ``points`` [B, N, 3] (model units) with ``hypothesis_scores`` [B, 60] added when
+    the graph does not compute them: one-directional for partial models, bidirectional for complete ones, from the
+    first ``score_points`` input points (the model's ``model_config.score_points``; 0 = all)."""
+    if SCORES in outputs:
+        return outputs
+    scores = hypothesis_scores(points, outputs["canonical_shape"], outputs["hypothesis_rotations"],
+                               outputs["hypothesis_translations"], bidirectional=not partial,
+                               score_points=score_points)                       # [B, 60]
+    return {**outputs, SCORES: scores}
