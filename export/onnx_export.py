@@ -1,13 +1,15 @@
 """torch → ONNX export of an ``EquiPoseNet``: one self-contained file with the equipose metadata contract.
 
 Convention:
-    Input ``points`` float32 [batch, N, 3], model units (metres / ``scale``), FPS-ordered; N fixed per model
-    (metadata ``num_points``), batch dynamic. Outputs (DESIGN.md "The ONNX contract", format 2):
+    Inputs (format 2): ``points`` float32 [batch, N, 3], model units (metres / ``scale``), FPS-ordered; N fixed per
+    model (metadata ``num_points``), batch dynamic; and one ``neighbours_<support>`` int64 [batch, centres, k] per
+    neighbourhood of the layers (``equipose.core.neighbourhoods``). Outputs (DESIGN.md "The ONNX contract"):
     ``canonical_shape`` [batch, M, 3], ``hypothesis_rotations`` [batch, 60, 3, 3] (act on column vectors),
     ``hypothesis_translations`` [batch, 60, 3] (model units, input frame). Hypothesis j is the group rotation
-    ``icosahedral.ANCHORS[j]`` (metadata ``anchors``). The hypothesis scores are not in the graph: the runtime
-    computes them (``equipose.core.scores``, 4–7× faster than onnxruntime's MatMuls); ``strip_graph_scores`` turns a
-    format-1 file, whose graph still outputs them, into a format-2 one with the same network.
+    ``icosahedral.ANCHORS[j]`` (metadata ``anchors``). The runtime computes the neighbourhoods and the hypothesis
+    scores (``equipose.core.neighbourhoods``, ``equipose.core.scores``): compiled, they take a fraction of the time of
+    onnxruntime's TopK and MatMuls. ``format_version=1`` writes the older contract (both inside the graph, one input);
+    ``upgrade_model_file`` turns such a file into a format-2 one with the same network.
     The graph uses the default ONNX domain only; the group tables are constant int64 ``Gather`` indices.
 
 Uses the torch 2.13 ``torch.export``-based exporter (``dynamo=True``, needs onnxscript) with weights inlined.
@@ -26,9 +28,10 @@ import numpy as np
 
 from equipose.core.errors import ConfigError, ModelFormatError
 from equipose.core.metadata import encode_metadata
+from equipose.core.neighbourhoods import input_name, nearest_neighbourhoods, neighbourhood_specs
 
 __all__ = ["DEFAULT_OPSET", "OUTPUT_NAMES", "INPUT_NAME", "export_model", "export_random_model", "export_checkpoint",
-           "update_metadata", "strip_graph_scores", "calibration_arrays", "op_type_counts"]
+           "update_metadata", "upgrade_model_file", "calibration_arrays", "op_type_counts"]
 
 DEFAULT_OPSET = 20
 INPUT_NAME = "points"
@@ -38,8 +41,9 @@ MAX_BATCH = 4096          # upper bound declared for the dynamic batch dimension
 PARITY_ATOL = 1e-4        # export-time self check: ORT vs torch on the example batch
 
 
-def _contract_module(model, names=OUTPUT_NAMES):
-    """Wrap ``model`` so that forward returns the outputs ``names`` as a tuple (what the exporter traces)."""
+def _contract_module(model, names=OUTPUT_NAMES, neighbour_inputs=()):
+    """Wrap ``model`` so that forward takes the points and the ``neighbour_inputs`` (names, in order) and returns the
+    outputs ``names`` as a tuple (what the exporter traces)."""
     import torch
 
     class _Contract(torch.nn.Module):
@@ -47,8 +51,9 @@ def _contract_module(model, names=OUTPUT_NAMES):
             super().__init__()
             self.net = net
 
-        def forward(self, points):                       # points [B, N, 3]
-            out = self.net(points)
+        def forward(self, points, *neighbours):          # points [B, N, 3]; neighbours [B, centres, k] int64 each
+            given = dict(zip(neighbour_inputs, neighbours)) if neighbour_inputs else None
+            out = self.net(points, neighbours=given)
             return tuple(out[k] for k in names)
 
     return _Contract(model).eval()
@@ -120,7 +125,7 @@ def _write_atomic(model_proto, path: pathlib.Path):
 def export_model(model, path, *, category: str, scale: float, symmetry: str = "none", calibration=None, handle=None,
                  shape_prior: str | None = None,
                  random_init: bool = False, training: dict | None = None, metrics: dict | None = None,
-                 opset: int = DEFAULT_OPSET, verify: bool = True, scores_in_graph: bool = False) -> pathlib.Path:
+                 opset: int = DEFAULT_OPSET, verify: bool = True, format_version: int = 2) -> pathlib.Path:
     """Export an ``EquiPoseNet`` to a single self-describing ONNX file and return its path.
 
     Args:
@@ -131,8 +136,8 @@ def export_model(model, path, *, category: str, scale: float, symmetry: str = "n
             training, metrics: written to ``metadata_props`` via ``equipose.core.metadata.encode_metadata``.
         opset: ONNX opset of the default domain.
         verify: run the file once in onnxruntime on the export example and compare with torch (max abs ≤ 1e-4).
-        scores_in_graph: also output ``hypothesis_scores`` from the graph (format 1, for readers of the ONNX file
-            that do not compute them; the SDK runs either).
+        format_version: 2 (neighbourhoods as inputs, no scores in the graph) or 1 (both computed in the graph, for
+            readers of the ONNX file that do not compute them; the SDK runs either).
     Raises:
         ConfigError / MetadataError for bad arguments; RuntimeError if the exported graph disagrees with torch.
     """
@@ -162,18 +167,24 @@ def export_model(model, path, *, category: str, scale: float, symmetry: str = "n
     path.parent.mkdir(parents=True, exist_ok=True)
 
     was_training = model.training
-    names = OUTPUT_NAMES + ((SCORES,) if scores_in_graph else ())
-    if scores_in_graph:
-        meta["equipose_format"] = "1"
-    wrapper = _contract_module(model, names)                              # sets eval mode on the net
+    if format_version not in (1, 2):
+        raise ConfigError(f"format_version must be 1 or 2, got {format_version!r}")
+    specs = neighbourhood_specs(cfg.layers) if format_version == 2 else []
+    names = OUTPUT_NAMES + ((SCORES,) if format_version == 1 else ())
+    meta["equipose_format"] = str(format_version)
+    wrapper = _contract_module(model, names, [input_name(sp) for sp in specs])   # sets eval mode on the net
     gen = torch.Generator().manual_seed(1234)
     example = torch.randn(2, cfg.num_points, 3, generator=gen) * 0.2       # [2, N, 3]; batch 2 keeps the dim symbolic
+    inputs = (example,) + tuple(torch.from_numpy(nearest_neighbourhoods(example.numpy(), sp)) for sp in specs)
     batch = torch.export.Dim("batch", min=1, max=MAX_BATCH)
     try:
         with _quiet_exporter(), torch.no_grad():
-            program = torch.onnx.export(wrapper, (example,), None, dynamo=True, external_data=False,
-                                        input_names=[INPUT_NAME], output_names=list(names),
-                                        dynamic_shapes=({0: batch},), opset_version=int(opset), optimize=True)
+            program = torch.onnx.export(wrapper, inputs, None, dynamo=True, external_data=False,
+                                        input_names=[INPUT_NAME] + [input_name(sp) for sp in specs],
+                                        output_names=list(names),
+                                        dynamic_shapes=({0: batch},) + ((tuple({0: batch} for _ in specs),)
+                                                                         if specs else ()),   # (points, *neighbours)
+                                        opset_version=int(opset), optimize=True)
         proto = program.model_proto
     finally:
         model.train(was_training)
@@ -186,25 +197,27 @@ def export_model(model, path, *, category: str, scale: float, symmetry: str = "n
     onnx.checker.check_model(proto, full_check=True)
     _write_atomic(proto, path)
     if verify:
-        _verify_parity(wrapper, path, example)
+        _verify_parity(wrapper, path, example, [input_name(sp) for sp in specs])
     return path
 
 
-def _verify_parity(wrapper, path: pathlib.Path, example):
-    """Run the written file in onnxruntime on ``example`` [B, N, 3] and compare all outputs with torch, the hypothesis
-    scores as the runtime computes them (``equipose.runtime.session.with_scores``) with the network's own."""
+def _verify_parity(wrapper, path: pathlib.Path, example, neighbour_inputs):
+    """Run the written file in onnxruntime on ``example`` [B, N, 3] as the runtime does (``GraphIO``: neighbourhoods
+    and hypothesis scores computed outside a format-2 graph) and compare all four outputs with torch given the same
+    neighbourhoods."""
     import onnxruntime as ort
     import torch
 
-    from equipose.runtime.session import with_scores
+    from equipose.runtime.session import GraphIO
 
-    net = wrapper.net
     sess = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"])
-    names = [o.name for o in sess.get_outputs()]
-    got = with_scores(dict(zip(names, sess.run(names, {INPUT_NAME: example.numpy()}))),
-                      example.numpy(), partial=net.partial, score_points=net.config.score_points)
+    io = GraphIO(sess, dict(sess.get_modelmeta().custom_metadata_map), path.name)
+    x = example.numpy()
+    feeds = io.feeds(x)
+    got = io.complete(dict(zip(io.outputs, sess.run(io.outputs, feeds))), x)
+    given = {k: torch.from_numpy(feeds[k]) for k in neighbour_inputs} or None
     with torch.no_grad():
-        ref = {k: v.numpy() for k, v in net(example).items()}
+        ref = {k: v.numpy() for k, v in wrapper.net(example, neighbours=given).items()}
     errs = {n: float(np.abs(got[n] - ref[n]).max()) for n in OUTPUT_NAMES + (SCORES,)}
     bad = {n: e for n, e in errs.items() if not e <= PARITY_ATOL}
     if bad:
@@ -278,14 +291,47 @@ def export_checkpoint(checkpoint, path, *, category: str | None = None, scale: f
                         random_init=False, training=training, metrics=ckpt.get("metrics") or {}, **kwargs)
 
 
-def strip_graph_scores(path, out=None) -> pathlib.Path:
-    """A format-1 model file (its graph outputs ``hypothesis_scores``) → format 2: the same graph without the score
-    nodes, every metadata entry kept, ``equipose_format`` set to 2. Written to ``out`` (default: in place); a
-    format-2 file is copied unchanged. Works on fp32 and int8 files alike (the score nodes hold no weights)."""
+def _topk_neighbourhoods(proto, specs) -> dict:
+    """{TopK indices output name: its ``NeighbourhoodSpec``} for the kNN TopKs of a format-1 graph, matched by the
+    shape of the ranked distances [batch, centres, support] and k."""
     import onnx
+    from onnx import numpy_helper
+
+    inferred = onnx.shape_inference.infer_shapes(proto)
+    dims = {v.name: [d.dim_value if d.HasField("dim_value") else d.dim_param for d in v.type.tensor_type.shape.dim]
+            for v in inferred.graph.value_info}
+    values = {t.name: numpy_helper.to_array(t) for t in proto.graph.initializer}
+    values.update({n.output[0]: numpy_helper.to_array(n.attribute[0].t) for n in proto.graph.node
+                   if n.op_type == "Constant" and n.attribute and n.attribute[0].name == "value"})
+    found = {}
+    for node in proto.graph.node:
+        if node.op_type != "TopK":
+            continue
+        shape, k = dims.get(node.input[0]), values.get(node.input[1])
+        match = [sp for sp in specs if shape is not None and k is not None and shape[1:] == [sp.centres, sp.support]
+                 and int(np.asarray(k).reshape(-1)[0]) == sp.k]
+        if len(match) != 1:
+            raise ModelFormatError(f"TopK {node.name} over {shape} (k = {k}) matches no neighbourhood of the model's "
+                                   f"layers {specs}; re-export the model instead")
+        found[node.output[1]] = match[0]
+    if sorted(found.values(), key=lambda sp: sp.support) != sorted(specs, key=lambda sp: sp.support):
+        raise ModelFormatError(f"the graph's TopKs {sorted(found.values(), key=str)} are not the model's "
+                               f"neighbourhoods {specs}; re-export the model instead")
+    return found
+
+
+def upgrade_model_file(path, out=None) -> pathlib.Path:
+    """A format-1 model file → format 2 with the same network: each kNN TopK becomes the graph input
+    ``neighbours_<support>``, the score nodes go, every metadata entry is kept and ``equipose_format`` set to 2.
+    Written to ``out`` (default: in place); a format-2 file is copied unchanged. Works on fp32 and int8 files alike
+    (neither the TopKs nor the score nodes hold weights)."""
+    import json
+
+    import onnx
+    from onnx import TensorProto, helper
     from onnx.utils import Extractor
 
-    from equipose.core.metadata import FORMAT_VERSION
+    from equipose.core.presets import ModelConfig
 
     path = pathlib.Path(path)
     out = path if out is None else pathlib.Path(out)
@@ -293,17 +339,27 @@ def strip_graph_scores(path, out=None) -> pathlib.Path:
         proto = onnx.load(str(path))
     except Exception as e:                                                 # protobuf decode errors, missing file
         raise ModelFormatError(f"{path} is not a readable ONNX model: {e}") from None
+    meta = {p.key: p.value for p in proto.metadata_props}
     outputs = [o.name for o in proto.graph.output]
-    if not set(OUTPUT_NAMES) <= set(outputs):
-        raise ModelFormatError(f"{path}: outputs {outputs} lack {OUTPUT_NAMES}; not an equipose model")
-    if SCORES in outputs:
-        meta = {p.key: p.value for p in proto.metadata_props}
-        sub = Extractor(proto).extract_model([INPUT_NAME], list(OUTPUT_NAMES))   # the nodes the three outputs need
+    if not set(OUTPUT_NAMES) <= set(outputs) or "model_config" not in meta:
+        raise ModelFormatError(f"{path}: outputs {outputs} lack {OUTPUT_NAMES} or it has no equipose metadata; "
+                               "not an equipose model")
+    if meta.get("equipose_format") == "1":
+        specs = neighbourhood_specs(ModelConfig.from_dict(json.loads(meta["model_config"])).layers)
+        topk = _topk_neighbourhoods(proto, specs)
+        for node in proto.graph.node:                                      # consumers read the new inputs
+            for i, name in enumerate(node.input):
+                if name in topk:
+                    node.input[i] = input_name(topk[name])
+        for sp in specs:
+            proto.graph.input.append(helper.make_tensor_value_info(input_name(sp), TensorProto.INT64,
+                                                                   ["batch", sp.centres, sp.k]))
+        sub = Extractor(proto).extract_model([INPUT_NAME] + [input_name(sp) for sp in specs], list(OUTPUT_NAMES))
         for field in ("ir_version", "producer_name", "producer_version", "doc_string"):
             setattr(sub, field, getattr(proto, field))
         del sub.opset_import[:]
         sub.opset_import.extend(proto.opset_import)
-        meta["equipose_format"] = str(FORMAT_VERSION)
+        meta["equipose_format"] = "2"
         for k, v in meta.items():
             sub.metadata_props.add(key=k, value=v)
         onnx.checker.check_model(sub, full_check=True)

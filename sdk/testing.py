@@ -109,22 +109,14 @@ def torch_layer_fn(layer_fwd) -> ModelFn:
 
 
 def onnx_model_fn(session) -> ModelFn:
-    """Adapt an ``onnxruntime.InferenceSession`` of an equipose model to a numpy model function (the hypothesis
-    scores computed as the runtime does when the graph has none, format 2)."""
-    import json
+    """Adapt an ``onnxruntime.InferenceSession`` of an equipose model to a numpy model function (a format-2 graph's
+    neighbourhoods and hypothesis scores computed as the runtime does, ``equipose.runtime.session.GraphIO``)."""
+    from equipose.runtime.session import GraphIO
 
-    from equipose.runtime.session import with_scores
-
-    names = [o.name for o in session.get_outputs()]
-    inp = session.get_inputs()[0].name
-    meta = session.get_modelmeta().custom_metadata_map
-    partial = meta.get("partial") == "true"
-    score_points = int(json.loads(meta.get("model_config", "{}")).get("score_points", 0))
+    io = GraphIO(session, dict(session.get_modelmeta().custom_metadata_map))
 
     def fn(points):
-        x = np.ascontiguousarray(points, dtype=np.float32)
-        return with_scores(dict(zip(names, session.run(None, {inp: x}))), x, partial=partial,
-                           score_points=score_points)
+        return io.run(session, np.ascontiguousarray(points, dtype=np.float32))
 
     return fn
 

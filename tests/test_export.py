@@ -13,8 +13,9 @@ from equipose.core import icosahedral as I  # noqa: E402
 from equipose.cli import main as cli_main  # noqa: E402
 from equipose.errors import ConfigError, MetadataError, ModelFormatError  # noqa: E402
 from equipose.export import (export_checkpoint, export_model, export_random_model, int8_path_for,  # noqa: E402
-                              strip_graph_scores)
+                              upgrade_model_file)
 from equipose.core.metadata import REQUIRED_KEYS, decode_metadata  # noqa: E402
+from equipose.core.neighbourhoods import input_name, neighbourhood_specs  # noqa: E402
 from equipose.core.presets import get_preset  # noqa: E402
 from equipose.testing import assert_equivariant, onnx_model_fn  # noqa: E402
 from equipose.train.fitting.checkpoint import save_checkpoint  # noqa: E402
@@ -96,7 +97,11 @@ def test_checker_and_shape_inference(tiny_ckpt):
         return [d.dim_param or d.dim_value for d in vi.type.tensor_type.shape.dim]
 
     cfg = get_preset("tiny")
-    assert [dims(v) for v in inferred.graph.input] == [["batch", cfg.num_points, 3]]
+    specs = neighbourhood_specs(cfg.layers)
+    assert [dims(v) for v in inferred.graph.input] == [["batch", cfg.num_points, 3]] + [
+        ["batch", s.centres, s.k] for s in specs]
+    assert [v.name for v in inferred.graph.input[1:]] == [input_name(s) for s in specs]
+    assert {v.type.tensor_type.elem_type for v in inferred.graph.input[1:]} == {onnx.TensorProto.INT64}
     assert inferred.graph.input[0].name == "points"
     assert inferred.graph.input[0].type.tensor_type.elem_type == onnx.TensorProto.FLOAT
     assert [v.name for v in inferred.graph.output] == list(OUTPUTS)
@@ -130,7 +135,8 @@ def _check_graph_rules(path, cfg):
                 group_convs += 1
     n_layers = len(cfg.layers)
     assert group_convs == n_layers                          # one intra (group) conv per separable layer
-    assert ops.count("TopK") == len({L.points_in for L in cfg.layers})  # one neighbourhood search per support size
+    assert "TopK" not in ops                                # neighbourhoods are inputs, one per support size
+    assert len(proto.graph.input) == 1 + len({L.points_in for L in cfg.layers})
     assert ops.count("Slice") >= sum(L.points_out < L.points_in for L in cfg.layers)   # prefix downsampling
     return proto
 
@@ -220,27 +226,32 @@ def test_metadata_round_trip(tiny_ckpt, tiny_cli):
 def test_dynamic_batch(tiny_ckpt, rng):
     sess = _session(tiny_ckpt[1])
     x = _cloud(rng, 3, 256)
-    one = [sess.run(list(OUTPUTS), {"points": x[i:i + 1]}) for i in range(3)]
-    three = sess.run(list(OUTPUTS), {"points": x})
-    for k, name in enumerate(OUTPUTS):
+    one = [_onnx_outputs(tiny_ckpt[1], x[i:i + 1]) for i in range(3)]
+    three = _onnx_outputs(tiny_ckpt[1], x)
+    for k, name in enumerate(ALL_OUTPUTS):
         assert three[k].shape[0] == 3 and one[0][k].shape[0] == 1
         np.testing.assert_allclose(three[k], np.concatenate([o[k] for o in one]), atol=1e-5, err_msg=name)
     with pytest.raises(Exception):                           # N is fixed per model
-        sess.run(None, {"points": _cloud(rng, 1, 128)})
+        onnx_model_fn(sess)(_cloud(rng, 1, 128))
 
 
 @pytest.mark.parametrize("partial", [True, False])
-def test_format1_graph_scores_and_their_removal(partial, tmp_path, rng):
-    """A format-1 file (scores in the graph) reads; ``strip_graph_scores`` makes it format 2 with the same network,
-    and the runtime's scores equal the graph's."""
+def test_format1_file_reads_and_upgrades_to_format2(partial, tmp_path, rng):
+    """A format-1 file (kNN and scores in the graph) reads; ``upgrade_model_file`` makes it format 2 with the same
+    network (neighbourhoods as inputs, no scores), and the runtime's neighbourhoods and scores give the same outputs."""
     from equipose import PoseEstimator
 
     torch.manual_seed(5)
     model = EquiPoseNet("tiny", partial=partial).eval()
-    old = export_model(model, tmp_path / "f1.onnx", category="bowl", scale=0.3, scores_in_graph=True)
-    new = strip_graph_scores(old, tmp_path / "f2.onnx")
+    old = export_model(model, tmp_path / "f1.onnx", category="bowl", scale=0.3, format_version=1)
+    new = upgrade_model_file(old, tmp_path / "f2.onnx")
     assert [o.name for o in _session(old).get_outputs()] == list(ALL_OUTPUTS)
     assert [o.name for o in _session(new).get_outputs()] == list(OUTPUTS)
+    assert [i.name for i in _session(old).get_inputs()] == ["points"]
+    assert [i.name for i in _session(new).get_inputs()] == ["points"] + [input_name(s) for s in
+                                                                        neighbourhood_specs(model.config.layers)]
+    assert "TopK" in {n.op_type for n in onnx.load(str(old)).graph.node}
+    assert "TopK" not in {n.op_type for n in onnx.load(str(new)).graph.node}
     meta_old = dict(_session(old).get_modelmeta().custom_metadata_map)
     meta_new = dict(_session(new).get_modelmeta().custom_metadata_map)
     assert meta_old.pop("equipose_format") == "1" and meta_new.pop("equipose_format") == "2"
@@ -273,8 +284,8 @@ def test_int8_copy(tiny_cli, rng):
     assert q_meta.pop("precision") == "int8" and f_meta.pop("precision") == "fp32"
     assert q_meta == f_meta
     x = _cloud(rng, 2, model.num_points)
-    a = _session(path).run(list(OUTPUTS), {"points": x})
-    b = _session(q).run(list(OUTPUTS), {"points": x})
+    a = _onnx_outputs(path, x)
+    b = _onnx_outputs(q, x)
     assert np.abs(a[0] - b[0]).max() < 0.05                  # canonical shape within 5 % of the unit box
     R = b[1]
     np.testing.assert_allclose(R @ np.swapaxes(R, -1, -2), np.broadcast_to(np.eye(3), R.shape), atol=1e-4)

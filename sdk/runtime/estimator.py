@@ -26,8 +26,7 @@ from equipose.runtime.spec import ModelSpec
 from equipose.runtime.stage import stage_metadata_keys
 from equipose.runtime.upright import check_up, per_object_up, resolve_plane_up
 from equipose.models import resolve_model_file
-from equipose.runtime.session import (INPUT_NAME, OUTPUT_NAMES, check_io, open_session, run_in_chunks,
-                                      with_scores)
+from equipose.runtime.session import INPUT_NAME, OUTPUT_NAMES, GraphIO, check_io, open_session, run_in_chunks
 
 __all__ = ["PoseEstimator", "INPUT_NAME", "OUTPUT_NAMES", "LIGHT_MODEL_MACS"]
 
@@ -114,8 +113,7 @@ class PoseEstimator:
         # the model reads N FPS-ordered points: a crop of 4·N (≥ 1024) keeps FPS coverage and bounds crop/FPS cost
         self.crop_options.setdefault("max_points", max(1024, 4 * self.num_points))
         self.static_batch = check_io(self.session, path.name, self.num_points)
-        self._graph_outputs = [o.name for o in self.session.get_outputs() if o.name in OUTPUT_NAMES]
-        self._score_points = int(self.metadata["model_config"].get("score_points", 0))
+        self.graph_io = GraphIO(self.session, self.metadata, path.name)        # neighbourhoods in, scores added
         macs = total_macs(ModelConfig.from_dict(self.metadata["model_config"]), partial=self.partial)
         self.single_thread = bool(adaptive_threads) and threads != 1 and macs < LIGHT_MODEL_MACS
         self._single_session = open_session(path, 1) if self.single_thread else None  # ≈ 20 ms off the first call
@@ -180,7 +178,7 @@ class PoseEstimator:
 
     def run_model(self, model_points: np.ndarray) -> dict:
         """Raw ONNX run. Convention: ``model_points`` [B, N, 3] float32 model units → dict of the 4 outputs
-        (``OUTPUT_NAMES``; the hypothesis scores computed here when the graph has none, format 2)."""
+        (``OUTPUT_NAMES``; a format-2 graph's neighbourhoods and hypothesis scores computed by ``GraphIO``)."""
         x = np.ascontiguousarray(model_points, dtype=np.float32)
         if x.ndim != 3 or x.shape[1:] != (self.num_points, 3):
             raise InvalidPointsError(f"model input must be [B, {self.num_points}, 3], got {x.shape}")
@@ -190,14 +188,15 @@ class PoseEstimator:
             parts = [self.run_model(x[i:i + 1]) for i in range(x.shape[0])]
             return {k: np.concatenate([p[k] for p in parts]) for k in OUTPUT_NAMES}
         session = self._single_session if self.uses_single_thread(x.shape[0]) else self.session
+        io = self.graph_io
+        feeds = io.feeds(x)                                                     # points (+ neighbourhoods)
         try:
-            outs = session.run(self._graph_outputs, {INPUT_NAME: x})
+            outs = session.run(io.outputs, feeds)
         except Exception as e:  # onnxruntime's own exception types (Fail, InvalidArgument, RuntimeException)
             raise ModelFormatError(f"onnxruntime could not run {self.path.name} on input {x.shape} "
                                    f"({type(e).__name__}: {str(e).splitlines()[0][:200]}); the model file may be "
                                    "damaged or not follow the equipose contract — re-export it") from None
-        return with_scores(dict(zip(self._graph_outputs, outs)), x, partial=self.partial,
-                           score_points=self._score_points)
+        return io.complete(dict(zip(io.outputs, outs)), x)                     # (+ hypothesis scores)
 
     def _finish(self, outputs: dict, b: int, prep: "_crop.PreparedPoints", *, prefer: int | None = None,
                 prefer_margin: float = 0.0, up=None, crop: dict | None = None) -> tuple:

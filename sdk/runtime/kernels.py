@@ -5,8 +5,8 @@ first process after an install compiles them all (about 30 s on a 2-core machine
 0.3 s). ``PoseEstimator`` calls ``load_kernels()`` when it is built, so no frame pays for either and per-frame
 timings stay those of the steady state.
 
-Kernels: ICP and nearest neighbours (``equipose.core.icp``, ``equipose.core.nearest``), the hypothesis scores
-(``equipose.core.scores``), farthest-point sampling
+Kernels: ICP and nearest neighbours (``equipose.core.icp``, ``equipose.core.nearest``), the network's
+neighbourhoods and hypothesis scores (``equipose.core.neighbourhoods``, ``equipose.core.scores``), farthest-point sampling
 (``equipose.core.geometry``), RANSAC plane scoring (``equipose.preprocess.plane``), the organized outlier filter
 (``equipose.preprocess.crop``), the mirror plane of the frame priors (``equipose.runtime.frame_priors``).
 """
@@ -31,6 +31,7 @@ def load_kernels() -> float:
         return 0.0
     from equipose.core.geometry import farthest_point_order
     from equipose.core.icp import icp_multi
+    from equipose.core.neighbourhoods import NeighbourhoodSpec, nearest_neighbourhoods
     from equipose.core.neighbours import NearestNeighbours
     from equipose.core.scores import hypothesis_scores
     from equipose.preprocess.crop import organized_outlier_mask
@@ -47,6 +48,7 @@ def load_kernels() -> float:
         NearestNeighbours(x, brute_max=brute_max).query(x, guess=np.arange(len(x)))
     farthest_point_order(x, 8)
     hypothesis_scores(x[None], x[None], np.eye(3)[None, None], np.zeros((1, 1, 3)), bidirectional=True)
+    nearest_neighbourhoods(x[None], NeighbourhoodSpec(support=40, centres=8, k=4, ordered=True))
     fit_plane_ransac(np.c_[x[:, :2], np.zeros(len(x))])                        # a plane: the refit runs too
     grid = np.arange(16)
     organized_outlier_mask(rng.normal(size=(16, 3)), grid // 4, grid % 4)

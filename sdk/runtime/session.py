@@ -1,24 +1,28 @@
 """onnxruntime sessions of equipose models: opening, I/O checks, metadata without a full estimator.
 
-Convention: an equipose model has one input ``points`` [batch, N, 3] float32 (model units, FPS-ordered) and the
-outputs ``GRAPH_OUTPUTS``; format-1 files also output ``hypothesis_scores``, which the runtime otherwise computes
-(``equipose.core.scores``), so a run always yields the four ``OUTPUT_NAMES``. The equipose metadata lives in the ONNX
-custom metadata map.
+Convention: an equipose model takes ``points`` [batch, N, 3] float32 (model units, FPS-ordered) and outputs
+``GRAPH_OUTPUTS``. Format-2 graphs also take the points' neighbourhoods and leave the hypothesis scores out; the
+runtime computes both (``GraphIO``), so a run always yields the four ``OUTPUT_NAMES``. Format-1 graphs take only the
+points and compute both themselves. The equipose metadata lives in the ONNX custom metadata map.
 """
 from __future__ import annotations
 
+import json
 import pathlib
 
 import numpy as np
 
 from equipose.core.errors import ModelFormatError
 from equipose.core.model_file import read_metadata  # noqa: F401  (re-exported: reading metadata needs no session)
+from equipose.core.neighbourhoods import input_name, neighbourhood_specs, neighbourhoods
+from equipose.core.presets import ModelConfig
 from equipose.core.scores import hypothesis_scores
 
-__all__ = ["INPUT_NAME", "GRAPH_OUTPUTS", "SCORES", "OUTPUT_NAMES", "RUN_CHUNK", "open_session", "check_io",
-           "read_metadata", "run_in_chunks", "with_scores"]
+__all__ = ["INPUT_NAME", "NEIGHBOURS_PREFIX", "GRAPH_OUTPUTS", "SCORES", "OUTPUT_NAMES", "RUN_CHUNK", "open_session",
+           "check_io", "read_metadata", "run_in_chunks", "GraphIO"]
 
 INPUT_NAME = "points"
+NEIGHBOURS_PREFIX = "neighbours_"                                                          # format-2 graph inputs
 GRAPH_OUTPUTS = ("canonical_shape", "hypothesis_rotations", "hypothesis_translations")   # every model's graph
 SCORES = "hypothesis_scores"                                                               # in format-1 graphs only
 OUTPUT_NAMES = GRAPH_OUTPUTS + (SCORES,)
@@ -60,9 +64,9 @@ def check_io(session, name: str, num_points: int):
     """Check the session's inputs/outputs against the equipose layout; returns the static batch size (or None)."""
     ins = session.get_inputs()
     outs = {o.name: o for o in session.get_outputs()}
-    if len(ins) != 1 or ins[0].name != INPUT_NAME:
-        raise ModelFormatError(f"{name}: expected one input named {INPUT_NAME!r}, got {[i.name for i in ins]}; "
-                               "not an equipose model")
+    if not ins or ins[0].name != INPUT_NAME or any(not i.name.startswith(NEIGHBOURS_PREFIX) for i in ins[1:]):
+        raise ModelFormatError(f"{name}: expected the input {INPUT_NAME!r} (then only {NEIGHBOURS_PREFIX}<support> "
+                               f"inputs), got {[i.name for i in ins]}; not an equipose model")
     missing = [o for o in GRAPH_OUTPUTS if o not in outs]
     if missing:
         raise ModelFormatError(f"{name}: outputs {missing} missing (has {sorted(outs)}); not an equipose model")
@@ -73,14 +77,45 @@ def check_io(session, name: str, num_points: int):
     return shape[0] if isinstance(shape[0], int) else None
 
 
+class GraphIO:
+    """What a model's graph takes and gives beyond ``points``, and how the runtime completes it.
 
-def with_scores(outputs: dict, points: np.ndarray, *, partial: bool, score_points: int) -> dict:
-    """``outputs`` of a graph run on ``points`` [B, N, 3] (model units) with ``hypothesis_scores`` [B, 60] added when
-    the graph does not compute them: one-directional for partial models, bidirectional for complete ones, from the
-    first ``score_points`` input points (the model's ``model_config.score_points``; 0 = all)."""
-    if SCORES in outputs:
-        return outputs
-    scores = hypothesis_scores(points, outputs["canonical_shape"], outputs["hypothesis_rotations"],
-                               outputs["hypothesis_translations"], bidirectional=not partial,
-                               score_points=score_points)                       # [B, 60]
-    return {**outputs, SCORES: scores}
+    Format 2: the graph takes the neighbourhoods ``neighbours_<support>`` [B, centres, k] int64 as inputs and outputs
+    no scores; both are computed here (``equipose.core.neighbourhoods``, ``equipose.core.scores``). Format 1: the
+    graph computes both itself. Built from a session (or any object with ``get_inputs`` / ``get_outputs``) and the
+    model's metadata (``partial``, ``model_config``).
+    """
+
+    def __init__(self, session, metadata: dict, name: str = "model"):
+        cfg = metadata["model_config"]
+        cfg = ModelConfig.from_dict(json.loads(cfg) if isinstance(cfg, str) else cfg)
+        inputs = [i.name for i in session.get_inputs()][1:]
+        specs = {input_name(s): s for s in neighbourhood_specs(cfg.layers)}
+        unknown = sorted(set(inputs) - set(specs))
+        if unknown:
+            raise ModelFormatError(f"{name}: graph inputs {unknown} match no neighbourhood of its layers "
+                                   f"({sorted(specs)}); re-export the model")
+        self.neighbourhoods = [specs[n] for n in inputs]                        # in graph-input order
+        self.outputs = [o.name for o in session.get_outputs() if o.name in OUTPUT_NAMES]
+        partial = metadata["partial"]
+        self.partial = partial == "true" if isinstance(partial, str) else bool(partial)
+        self.score_points = int(cfg.score_points)
+
+    def feeds(self, x: np.ndarray) -> dict:
+        """The graph's inputs for ``x`` [B, N, 3] float32 model units: the points and their neighbourhoods."""
+        return {INPUT_NAME: x, **neighbourhoods(x, self.neighbourhoods)}
+
+    def complete(self, outputs: dict, x: np.ndarray) -> dict:
+        """The graph's ``outputs`` on ``x`` with ``hypothesis_scores`` [B, 60] added when the graph does not compute
+        them: one-directional for partial models, bidirectional for complete ones, from the first
+        ``model_config.score_points`` input points (0 = all)."""
+        if SCORES in outputs:
+            return outputs
+        scores = hypothesis_scores(x, outputs["canonical_shape"], outputs["hypothesis_rotations"],
+                                   outputs["hypothesis_translations"], bidirectional=not self.partial,
+                                   score_points=self.score_points)              # [B, 60]
+        return {**outputs, SCORES: scores}
+
+    def run(self, session, x: np.ndarray) -> dict:
+        """One run of ``session`` on ``x`` [B, N, 3] float32 model units → the four ``OUTPUT_NAMES``."""
+        return self.complete(dict(zip(self.outputs, session.run(self.outputs, self.feeds(x)))), x)

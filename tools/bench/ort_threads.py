@@ -1,5 +1,6 @@
 """onnxruntime inference time of an equipose model on 1 vs 2 intra-op threads, per batch size (the evidence behind
-``PoseEstimator(adaptive_threads=True)``). Random FPS-ordered inputs, no pre/post-processing.
+``PoseEstimator(adaptive_threads=True)``). Random FPS-ordered inputs, no pre/post-processing: the graph run alone
+(a format-2 graph gets the neighbourhoods it takes, computed before the timing).
 
 Usage: python tools/bench/ort_threads.py MODEL.onnx [MODEL2.onnx ...] [--batches 1 2 8] [--runs 200]
 Prints median ms over ``--runs`` runs, three repeats per cell (each in the same process).
@@ -11,6 +12,7 @@ import numpy as np
 import onnxruntime as ort
 
 from equipose.core.geometry import farthest_point_order
+from equipose.runtime.session import GraphIO
 
 
 def session(path, threads):
@@ -31,20 +33,21 @@ def main():
     for path in args.models:
         s1 = session(path, 1)
         n = s1.get_inputs()[0].shape[1]
+        io = GraphIO(s1, dict(s1.get_modelmeta().custom_metadata_map), path)
         for b in args.batches:
             pts = [rng.standard_normal((4 * n, 3)) * np.array([0.3, 0.2, 0.1]) for _ in range(b)]
-            x = np.stack([p[farthest_point_order(p, n)] for p in pts]).astype(np.float32)
+            feeds = io.feeds(np.stack([p[farthest_point_order(p, n)] for p in pts]).astype(np.float32))
             cells = []
             for threads in (1, 2):
                 s = s1 if threads == 1 else session(path, 2)
                 for _ in range(20):
-                    s.run(None, {"points": x})
+                    s.run(None, feeds)
                 reps = []
                 for _ in range(3):
                     ts = []
                     for _ in range(args.runs):
                         t = time.perf_counter()
-                        s.run(None, {"points": x})
+                        s.run(None, feeds)
                         ts.append(time.perf_counter() - t)
                     reps.append(np.median(ts) * 1e3)
                 cells.append(" ".join(f"{r:.2f}" for r in reps))

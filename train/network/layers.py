@@ -19,6 +19,7 @@ from torch import nn
 from torch.nn import functional as F
 
 from equipose.core import icosahedral
+from equipose.core.neighbourhoods import input_name, neighbourhood_specs
 from equipose.core.presets import LayerSpec
 
 __all__ = ["knn_indices", "flat_rows", "shared_neighbourhoods", "kernel_aug", "hat_weights", "gather_rows",
@@ -71,21 +72,24 @@ def hat_weights(xyz: torch.Tensor, spec: LayerSpec, aug: torch.Tensor, knn: torc
     return flat, F.relu(aug @ rel_aug.transpose(-1, -2))                               # [B, P2, R, nn]
 
 
-def shared_neighbourhoods(xyz: torch.Tensor, layers) -> list:
-    """Neighbour indices [B, P2, nn] for every layer, one TopK per distinct support size.
+def shared_neighbourhoods(xyz: torch.Tensor, layers, given: dict | None = None) -> list:
+    """Neighbour indices [B, P2, nn] for every layer, one kNN per distinct support size
+    (``equipose.core.neighbourhoods.neighbourhood_specs``).
 
     With FPS-ordered input every layer's support is the prefix ``xyz[:, :points_in]`` and its centres the prefix
     ``[:, :points_out]``, so layers sharing a support share one kNN over the most centres and neighbours any of them
     needs. It is sorted (nearest first) only where some layer takes fewer neighbours than that, so that its
     neighbourhood is a prefix of the shared one; a convolution sums over its neighbours, so order is otherwise
-    irrelevant. xyz [B, N, 3].
+    irrelevant. xyz [B, N, 3]. ``given``: ``{input_name(spec): [B, centres, k] int64}`` computed outside (the
+    exported graph's inputs), used instead of the TopK.
     """
-    need: dict = {}
-    for L in layers:
-        p2, k = need.get(L.points_in, (0, 0))
-        need[L.points_in] = (max(p2, L.points_out), max(k, L.neighbours))
-    prefix = {L.points_in for L in layers if L.neighbours < need[L.points_in][1]}   # supports needing nearest-first
-    knn = {p1: knn_indices(xyz[:, :p1], xyz[:, :p2], k, ordered=p1 in prefix) for p1, (p2, k) in need.items()}
+    knn = {}
+    for spec in neighbourhood_specs(layers):
+        if given is not None:
+            knn[spec.support] = given[input_name(spec)]                            # [B, centres, k]
+        else:
+            knn[spec.support] = knn_indices(xyz[:, :spec.support], xyz[:, :spec.centres], spec.k,
+                                            ordered=spec.ordered)
     return [knn[L.points_in][:, :L.points_out, :L.neighbours] for L in layers]
 
 

@@ -207,10 +207,11 @@ class EquiPoseNet(nn.Module):
     def num_points(self) -> int:
         return self.config.num_points
 
-    def backbone(self, centred: torch.Tensor) -> tuple:
-        """centred [B, N, 3] → (xyz [B, P, 3], feats [B, P, A, C]; [B, P, 12, C] for a quotient backbone)."""
+    def backbone(self, centred: torch.Tensor, neighbours: dict | None = None) -> tuple:
+        """centred [B, N, 3] → (xyz [B, P, 3], feats [B, P, A, C]; [B, P, 12, C] for a quotient backbone).
+        ``neighbours``: the kNN index sets computed outside (``equipose.core.neighbourhoods``), or None (TopK)."""
         xyz, feats = centred, None
-        knn = shared_neighbourhoods(centred, self.config.layers)                # one TopK per support size
+        knn = shared_neighbourhoods(centred, self.config.layers, neighbours)    # one kNN per support size
         for blk, nb in zip(self.blocks, knn):
             xyz, feats = blk(xyz, feats, nb)
         return xyz, feats
@@ -222,12 +223,14 @@ class EquiPoseNet(nn.Module):
         qw = self.cos_theta_max + (1.0 - self.cos_theta_max) * torch.sigmoid(q_raw[..., :1])
         return torch.cat([qw, q_raw[..., 1:]], dim=-1)
 
-    def forward(self, points: torch.Tensor, return_aux: bool = False):
-        """points [B, N, 3] → dict of the four contract outputs (+ ``quaternion_norm`` [B, A] if ``return_aux``)."""
+    def forward(self, points: torch.Tensor, return_aux: bool = False, neighbours: dict | None = None):
+        """points [B, N, 3] → dict of the four contract outputs (+ ``quaternion_norm`` [B, A] if ``return_aux``).
+        ``neighbours``: ``{name: [B, centres, k] int64}`` per ``equipose.core.neighbourhoods`` (the exported graph's
+        inputs; distances do not change under the centring, so they may come from ``points``), or None."""
         if points.dim() != 3 or points.shape[-1] != 3:
             raise ValueError(f"points must be [B, N, 3], got {tuple(points.shape)}")
         t0 = points.mean(dim=1, keepdim=True)                                   # [B, 1, 3]
-        xyz, feats = self.backbone(points - t0)                                 # [B, P, 3], [B, P, A, C]
+        xyz, feats = self.backbone(points - t0, neighbours)                     # [B, P, 3], [B, P, A, C]
         q_raw, t_raw = self.pose_head(feats)                                    # [B, A, 4], [B, A, 3]
         dq = self.residual_quaternion(q_raw)                                    # [B, A, 4]
         R = self.anchors @ quaternion_to_matrix(dq)                             # [B, A, 3, 3]

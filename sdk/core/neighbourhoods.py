@@ -1,0 +1,96 @@
+"""The network's point neighbourhoods: which k-nearest-neighbour sets a model needs, and computing them (compiled).
+
+Convention:
+    Points [B, N, 3] float32 model units, FPS-ordered, so every layer's support is the prefix ``points[:, :support]``
+    and its centres the prefix ``[:, :centres]``. A neighbourhood is int64 [B, centres, k]: the indices (into the
+    support) of each centre's k nearest support points, nearest first; ties go to the lower index.
+    Layers sharing a support share one neighbourhood over the most centres and neighbours any of them needs; a layer
+    taking fewer neighbours uses its nearest-first prefix.
+
+Format-2 model files take the neighbourhoods as graph inputs named ``neighbours_<support>`` (``input_name``), which
+the runtime computes here: 0.05–0.1 ms per input against about 0.7 ms for onnxruntime's TopK over the distance
+matrices.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numba import njit
+
+from equipose.core.errors import InvalidPointsError
+
+__all__ = ["NeighbourhoodSpec", "neighbourhood_specs", "input_name", "nearest_neighbourhoods", "neighbourhoods"]
+
+
+@dataclass(frozen=True)
+class NeighbourhoodSpec:
+    """One shared neighbourhood: ``centres`` first points, each with its ``k`` nearest among the first ``support``;
+    ``ordered`` when some layer reads a nearest-first prefix of it (then its order matters, otherwise only its set)."""
+    support: int
+    centres: int
+    k: int
+    ordered: bool
+
+
+def neighbourhood_specs(layers) -> list:
+    """The distinct neighbourhoods of a model's layers (``ModelConfig.layers``: ``points_in``, ``points_out``,
+    ``neighbours``), one per support size, in the order the layers first use them."""
+    need: dict = {}
+    for L in layers:
+        centres, k = need.get(L.points_in, (0, 0))
+        need[L.points_in] = (max(centres, L.points_out), max(k, L.neighbours))
+    prefix = {L.points_in for L in layers if L.neighbours < need[L.points_in][1]}
+    return [NeighbourhoodSpec(support, centres, k, support in prefix) for support, (centres, k) in need.items()]
+
+
+def input_name(spec: NeighbourhoodSpec) -> str:
+    """The graph input that carries ``spec``'s neighbourhood."""
+    return f"neighbours_{spec.support}"
+
+
+@njit(cache=True, fastmath=True)
+def _knn(points, support, centres, k, out):
+    """``out`` [B, centres, k] int64 = the k nearest of the first ``support`` points for each of the first
+    ``centres`` points of ``points`` [B, N, 3] float32, nearest first (squared float32 distances, lower index on ties)."""
+    dist = np.empty(support, np.float32)
+    best_d = np.empty(k, np.float32)
+    best_i = np.empty(k, np.int64)
+    for b in range(points.shape[0]):
+        for c in range(centres):
+            cx, cy, cz = points[b, c, 0], points[b, c, 1], points[b, c, 2]
+            for m in range(support):
+                dx, dy, dz = points[b, m, 0] - cx, points[b, m, 1] - cy, points[b, m, 2] - cz
+                dist[m] = dx * dx + dy * dy + dz * dz
+            filled = 0
+            for m in range(support):                                            # insertion into a sorted top-k
+                d = dist[m]
+                if filled == k and d >= best_d[k - 1]:
+                    continue
+                pos = filled if filled < k else k - 1
+                while pos > 0 and best_d[pos - 1] > d:
+                    if pos < k:
+                        best_d[pos], best_i[pos] = best_d[pos - 1], best_i[pos - 1]
+                    pos -= 1
+                best_d[pos], best_i[pos] = d, m
+                if filled < k:
+                    filled += 1
+            for j in range(k):
+                out[b, c, j] = best_i[j]
+
+
+def nearest_neighbourhoods(points: np.ndarray, spec: NeighbourhoodSpec) -> np.ndarray:
+    """The neighbourhood ``spec`` of ``points`` [B, N, 3] (model units) → int64 [B, centres, k] (module docstring)."""
+    x = np.ascontiguousarray(points, np.float32)
+    if x.ndim != 3 or x.shape[2] != 3:
+        raise InvalidPointsError(f"points must be [B, N, 3], got {x.shape}")
+    if not 1 <= spec.k <= spec.support <= x.shape[1] or not 1 <= spec.centres <= spec.support:
+        raise InvalidPointsError(f"neighbourhood {spec} does not fit {x.shape[1]} points")
+    out = np.empty((x.shape[0], spec.centres, spec.k), np.int64)               # [B, centres, k]
+    _knn(x, spec.support, spec.centres, spec.k, out)
+    return out
+
+
+def neighbourhoods(points: np.ndarray, specs) -> dict:
+    """``{input_name(spec): [B, centres, k] int64}`` for every spec of ``specs`` (``neighbourhood_specs``)."""
+    return {input_name(s): nearest_neighbourhoods(points, s) for s in specs}
