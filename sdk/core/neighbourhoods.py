@@ -8,8 +8,8 @@ Convention:
     taking fewer neighbours uses its nearest-first prefix.
 
 Format-2 model files take the neighbourhoods as graph inputs named ``neighbours_<support>`` (``input_name``), which
-the runtime computes here: 0.05–0.1 ms per input against about 0.7 ms for onnxruntime's TopK over the distance
-matrices.
+the runtime computes here: about 0.2 ms per input (128 × 256, 128 × 128 and 64 × 64 with k = 16, 16, 12) against
+0.65–1 ms for onnxruntime's TopKs over the distance matrices.
 """
 from __future__ import annotations
 
@@ -49,34 +49,38 @@ def input_name(spec: NeighbourhoodSpec) -> str:
     return f"neighbours_{spec.support}"
 
 
+_NO_KEY = np.int64(0x7FFFFFFFFFFFFFFF)
+
+
 @njit(cache=True, fastmath=True)
 def _knn(points, support, centres, k, out):
     """``out`` [B, centres, k] int64 = the k nearest of the first ``support`` points for each of the first
-    ``centres`` points of ``points`` [B, N, 3] float32, nearest first (squared float32 distances, lower index on ties)."""
+    ``centres`` points of ``points`` [B, N, 3] float32, nearest first (squared float32 distances, lower index on ties).
+
+    Each candidate's key is its distance's int32 bit pattern (non-negative floats order like their bits) above its
+    index; k rounds of a vectorised minimum over the keys pick the neighbours in order. Branch-free, this is about 3×
+    faster than inserting candidates into a sorted top-k, whose branches the CPU cannot predict."""
+    xs, ys, zs = np.empty(support, np.float32), np.empty(support, np.float32), np.empty(support, np.float32)
     dist = np.empty(support, np.float32)
-    best_d = np.empty(k, np.float32)
-    best_i = np.empty(k, np.int64)
+    bits = dist.view(np.int32)
+    keys = np.empty(support, np.int64)
     for b in range(points.shape[0]):
+        for m in range(support):
+            xs[m], ys[m], zs[m] = points[b, m, 0], points[b, m, 1], points[b, m, 2]
         for c in range(centres):
-            cx, cy, cz = points[b, c, 0], points[b, c, 1], points[b, c, 2]
+            cx, cy, cz = xs[c], ys[c], zs[c]
             for m in range(support):
-                dx, dy, dz = points[b, m, 0] - cx, points[b, m, 1] - cy, points[b, m, 2] - cz
+                dx, dy, dz = xs[m] - cx, ys[m] - cy, zs[m] - cz
                 dist[m] = dx * dx + dy * dy + dz * dz
-            filled = 0
-            for m in range(support):                                            # insertion into a sorted top-k
-                d = dist[m]
-                if filled == k and d >= best_d[k - 1]:
-                    continue
-                pos = filled if filled < k else k - 1
-                while pos > 0 and best_d[pos - 1] > d:
-                    if pos < k:
-                        best_d[pos], best_i[pos] = best_d[pos - 1], best_i[pos - 1]
-                    pos -= 1
-                best_d[pos], best_i[pos] = d, m
-                if filled < k:
-                    filled += 1
+            for m in range(support):
+                keys[m] = (np.int64(bits[m]) << 32) | m
             for j in range(k):
-                out[b, c, j] = best_i[j]
+                best = _NO_KEY
+                for m in range(support):
+                    best = min(best, keys[m])
+                nearest = best & 0xFFFFFFFF
+                out[b, c, j] = nearest
+                keys[nearest] = _NO_KEY
 
 
 def nearest_neighbourhoods(points: np.ndarray, spec: NeighbourhoodSpec) -> np.ndarray:
