@@ -252,10 +252,10 @@ def test_golden_mug_sample_handle(name):
 
 
 # ---------------------------------------------------------------------------------------------------------------------
-# the ONNX contract's equivariance tolerances (README "Export"): fp32 1e-5, int8 5e-2
+# the ONNX contract's equivariance tolerances (docs/training.md "Export"): fp32 1e-5, int8 8e-2
 
-@pytest.mark.parametrize("name, atol", [("car-partial", 1e-5), ("car-partial.int8", 5e-2),
-                                        ("cup-tabletop.int8", 5e-2), ("airplane-complete.int8", 5e-2)])
+@pytest.mark.parametrize("name, atol", [("car-partial", 1e-5), ("car-partial.int8", 8e-2),
+                                        ("cup-tabletop.int8", 8e-2), ("airplane-complete.int8", 8e-2)])
 def test_shipped_models_meet_the_equivariance_tolerance(name, atol):
     from equipose.testing import assert_equivariant
     est = PoseEstimator(name, threads=1)
