@@ -173,7 +173,7 @@ class PoseEstimator:
     def info(self) -> dict:
         """Model facts from the metadata (JSON-ready)."""
         keys = ("category", "preset", "num_points", "num_canonical_points", "scale", "partial", "symmetry",
-                "random_init", "equipose_version", "training", "metrics")
+                "random_init", "equipose_format", "equipose_version", "training", "metrics")
         return {k: self.metadata[k] for k in keys}
 
     def run_model(self, model_points: np.ndarray) -> dict:
