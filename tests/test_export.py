@@ -270,6 +270,15 @@ def test_format1_file_reads_and_upgrades_to_format2(partial, tmp_path, rng):
     np.testing.assert_allclose(r_new.translation, r_old.translation, atol=1e-6)
 
 
+def test_cli_writes_either_format(tmp_path):
+    for fmt, inputs in (("1", 1), ("2", 1 + len(neighbourhood_specs(get_preset("tiny").layers)))):
+        out = tmp_path / f"f{fmt}.onnx"
+        assert cli_main(["export", "--preset", "tiny", "--random-init", "-o", str(out), "--format", fmt]) == 0
+        sess = _session(out)
+        assert len(sess.get_inputs()) == inputs
+        assert sess.get_modelmeta().custom_metadata_map["equipose_format"] == fmt
+
+
 def test_int8_copy(tiny_cli, rng):
     model, path = tiny_cli
     q = int8_path_for(path)

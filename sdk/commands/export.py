@@ -33,6 +33,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, default=0, help="random seed for --random-init (default: 0)")
     parser.add_argument("--opset", type=int, default=None, help="ONNX opset (default: the exporter's, 20)")
     parser.add_argument("--no-verify", action="store_true", help="skip the onnxruntime-vs-torch parity self check")
+    parser.add_argument("--format", type=int, choices=(1, 2), default=2, dest="format_version",
+                        help="model file format: 2 (default; the runtime computes the kNN inputs and the hypothesis "
+                             "scores) or 1 (both inside the graph, one input; docs/architecture.md)")
 
 
 def _summary(path: pathlib.Path) -> str:
@@ -49,7 +52,7 @@ def run(args) -> int:
     from equipose.export.onnx_export import DEFAULT_OPSET, export_checkpoint, export_random_model
     from equipose.export.quantize import quantize_int8
 
-    opts = {"opset": args.opset or DEFAULT_OPSET, "verify": not args.no_verify}
+    opts = {"opset": args.opset or DEFAULT_OPSET, "verify": not args.no_verify, "format_version": args.format_version}
     if args.checkpoint is not None:
         if args.random_init:
             raise ConfigError("--random-init goes with --preset, not with --checkpoint")
