@@ -8,8 +8,7 @@ Convention:
     taking fewer neighbours uses its nearest-first prefix.
 
 Format-2 model files take the neighbourhoods as graph inputs named ``neighbours_<support>`` (``input_name``), which
-the runtime computes here: about 0.2 ms per input (128 × 256, 128 × 128 and 64 × 64 with k = 16, 16, 12) against
-0.65–1 ms for onnxruntime's TopKs over the distance matrices.
+the runtime computes here, faster than onnxruntime's TopKs over the distance matrices (docs/benchmarks.md, v0.27).
 """
 from __future__ import annotations
 
@@ -58,8 +57,8 @@ def _knn(points, support, centres, k, out):
     ``centres`` points of ``points`` [B, N, 3] float32, nearest first (squared float32 distances, lower index on ties).
 
     Each candidate's key is its distance's int32 bit pattern (non-negative floats order like their bits) above its
-    index; k rounds of a vectorised minimum over the keys pick the neighbours in order. Branch-free, this is about 3×
-    faster than inserting candidates into a sorted top-k, whose branches the CPU cannot predict."""
+    index; k rounds of a vectorised minimum over the keys pick the neighbours in order: branch-free, unlike inserting
+    candidates into a sorted top-k, whose branches the CPU cannot predict (docs/benchmarks.md, v0.27)."""
     xs, ys, zs = np.empty(support, np.float32), np.empty(support, np.float32), np.empty(support, np.float32)
     dist = np.empty(support, np.float32)
     bits = dist.view(np.int32)
