@@ -29,14 +29,12 @@ import numpy as np
 from equipose.core.errors import ConfigError, ModelFormatError
 from equipose.core.metadata import encode_metadata
 from equipose.core.neighbourhoods import input_name, nearest_neighbourhoods, neighbourhood_specs
+from equipose.runtime.session import GRAPH_OUTPUTS as OUTPUT_NAMES, INPUT_NAME, SCORES, GraphIO
 
 __all__ = ["DEFAULT_OPSET", "OUTPUT_NAMES", "INPUT_NAME", "export_model", "export_random_model", "export_checkpoint",
            "update_metadata", "upgrade_model_file", "calibration_arrays", "op_type_counts"]
 
 DEFAULT_OPSET = 20
-INPUT_NAME = "points"
-OUTPUT_NAMES = ("canonical_shape", "hypothesis_rotations", "hypothesis_translations")     # the graph's outputs
-SCORES = "hypothesis_scores"                                                               # computed by the runtime
 MAX_BATCH = 4096          # upper bound declared for the dynamic batch dimension
 PARITY_ATOL = 1e-4        # export-time self check: ORT vs torch on the example batch
 
@@ -170,9 +168,10 @@ def export_model(model, path, *, category: str, scale: float, symmetry: str = "n
     if format_version not in (1, 2):
         raise ConfigError(f"format_version must be 1 or 2, got {format_version!r}")
     specs = neighbourhood_specs(cfg.layers) if format_version == 2 else []
+    neighbour_inputs = [input_name(sp) for sp in specs]
     names = OUTPUT_NAMES + ((SCORES,) if format_version == 1 else ())
     meta["equipose_format"] = str(format_version)
-    wrapper = _contract_module(model, names, [input_name(sp) for sp in specs])   # sets eval mode on the net
+    wrapper = _contract_module(model, names, neighbour_inputs)            # sets eval mode on the net
     gen = torch.Generator().manual_seed(1234)
     example = torch.randn(2, cfg.num_points, 3, generator=gen) * 0.2       # [2, N, 3]; batch 2 keeps the dim symbolic
     inputs = (example,) + tuple(torch.from_numpy(nearest_neighbourhoods(example.numpy(), sp)) for sp in specs)
@@ -180,7 +179,7 @@ def export_model(model, path, *, category: str, scale: float, symmetry: str = "n
     try:
         with _quiet_exporter(), torch.no_grad():
             program = torch.onnx.export(wrapper, inputs, None, dynamo=True, external_data=False,
-                                        input_names=[INPUT_NAME] + [input_name(sp) for sp in specs],
+                                        input_names=[INPUT_NAME] + neighbour_inputs,
                                         output_names=list(names),
                                         dynamic_shapes=({0: batch},) + ((tuple({0: batch} for _ in specs),)
                                                                          if specs else ()),   # (points, *neighbours)
@@ -197,7 +196,7 @@ def export_model(model, path, *, category: str, scale: float, symmetry: str = "n
     onnx.checker.check_model(proto, full_check=True)
     _write_atomic(proto, path)
     if verify:
-        _verify_parity(wrapper, path, example, [input_name(sp) for sp in specs])
+        _verify_parity(wrapper, path, example, neighbour_inputs)
     return path
 
 
@@ -207,8 +206,6 @@ def _verify_parity(wrapper, path: pathlib.Path, example, neighbour_inputs):
     neighbourhoods."""
     import onnxruntime as ort
     import torch
-
-    from equipose.runtime.session import GraphIO
 
     sess = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"])
     io = GraphIO(sess, dict(sess.get_modelmeta().custom_metadata_map), path.name)

@@ -4,8 +4,9 @@ Written by ``equipose.export`` into ``ModelProto.metadata_props``; read by the S
 ``custom_metadata_map``. Torch-free.
 
 Keys (all values are strings):
-    equipose_format         format version, currently "2" (the graph outputs no hypothesis scores: the runtime
-                            computes them, ``equipose.core.scores``); "1" files, whose graphs output them, still read
+    equipose_format         format version, currently "2" (the graph takes the kNN neighbourhoods as inputs and
+                            outputs no hypothesis scores: the runtime computes both, ``equipose.runtime.session.
+                            GraphIO``); "1" files, whose graphs compute both, still read
     equipose_version        package version that wrote the file
     category                e.g. "airplane", "mug"
     preset                  preset name (``equipose.core.presets``)
@@ -58,7 +59,7 @@ __all__ = ["FORMAT_VERSION", "READABLE_FORMATS", "REQUIRED_KEYS", "FRAME_PRIOR_S
            "encode_metadata", "decode_metadata", "encode_turn_classifier"]
 
 FORMAT_VERSION = 2
-READABLE_FORMATS = (1, 2)                                  # 1: hypothesis_scores computed in the graph
+READABLE_FORMATS = (1, 2)                                  # 1: kNN and hypothesis scores inside the graph
 FRAME_PRIOR_STEPS = ("rest", "mirror", "footprint")       # equipose.runtime.frame_priors
 CONFIDENCE_FEATURES = ("margin", "flip_margin", "residual", "outliers", "coverage", "occlusion", "log_points",
                        "ambiguous", "up_given", "handle_seen", "handle_share")   # equipose.runtime.stages.confidence

@@ -19,7 +19,10 @@ from numba import njit
 
 from equipose.core.errors import InvalidPointsError
 
-__all__ = ["NeighbourhoodSpec", "neighbourhood_specs", "input_name", "nearest_neighbourhoods", "neighbourhoods"]
+__all__ = ["INPUT_PREFIX", "NeighbourhoodSpec", "neighbourhood_specs", "input_name", "nearest_neighbourhoods",
+           "neighbourhoods"]
+
+INPUT_PREFIX = "neighbours_"                    # graph input of a neighbourhood: INPUT_PREFIX + its support size
 
 
 @dataclass(frozen=True)
@@ -45,7 +48,7 @@ def neighbourhood_specs(layers) -> list:
 
 def input_name(spec: NeighbourhoodSpec) -> str:
     """The graph input that carries ``spec``'s neighbourhood."""
-    return f"neighbours_{spec.support}"
+    return f"{INPUT_PREFIX}{spec.support}"
 
 
 _NO_KEY = np.int64(0x7FFFFFFFFFFFFFFF)

@@ -14,15 +14,14 @@ import numpy as np
 
 from equipose.core.errors import ModelFormatError
 from equipose.core.model_file import read_metadata  # noqa: F401  (re-exported: reading metadata needs no session)
-from equipose.core.neighbourhoods import input_name, neighbourhood_specs, neighbourhoods
+from equipose.core.neighbourhoods import INPUT_PREFIX, input_name, neighbourhood_specs, neighbourhoods
 from equipose.core.presets import ModelConfig
 from equipose.core.scores import hypothesis_scores
 
-__all__ = ["INPUT_NAME", "NEIGHBOURS_PREFIX", "GRAPH_OUTPUTS", "SCORES", "OUTPUT_NAMES", "RUN_CHUNK", "open_session",
+__all__ = ["INPUT_NAME", "GRAPH_OUTPUTS", "SCORES", "OUTPUT_NAMES", "RUN_CHUNK", "open_session",
            "check_io", "read_metadata", "run_in_chunks", "GraphIO"]
 
 INPUT_NAME = "points"
-NEIGHBOURS_PREFIX = "neighbours_"                                                          # format-2 graph inputs
 GRAPH_OUTPUTS = ("canonical_shape", "hypothesis_rotations", "hypothesis_translations")   # every model's graph
 SCORES = "hypothesis_scores"                                                               # in format-1 graphs only
 OUTPUT_NAMES = GRAPH_OUTPUTS + (SCORES,)
@@ -64,8 +63,8 @@ def check_io(session, name: str, num_points: int):
     """Check the session's inputs/outputs against the equipose layout; returns the static batch size (or None)."""
     ins = session.get_inputs()
     outs = {o.name: o for o in session.get_outputs()}
-    if not ins or ins[0].name != INPUT_NAME or any(not i.name.startswith(NEIGHBOURS_PREFIX) for i in ins[1:]):
-        raise ModelFormatError(f"{name}: expected the input {INPUT_NAME!r} (then only {NEIGHBOURS_PREFIX}<support> "
+    if not ins or ins[0].name != INPUT_NAME or any(not i.name.startswith(INPUT_PREFIX) for i in ins[1:]):
+        raise ModelFormatError(f"{name}: expected the input {INPUT_NAME!r} (then only {INPUT_PREFIX}<support> "
                                f"inputs), got {[i.name for i in ins]}; not an equipose model")
     missing = [o for o in GRAPH_OUTPUTS if o not in outs]
     if missing:
