@@ -1,7 +1,7 @@
 """The compiled (numba) kernels of the SDK, loaded or compiled once per process before the first frame.
 
 numba compiles a kernel on its first call and caches the machine code next to its source (``__pycache__``); the
-first process after an install compiles them all (about 30 s on a 2-core machine), later ones load them (about
+first process after an install compiles them all (30–60 s on a 2-core machine), later ones load them (about
 0.3 s). ``PoseEstimator`` calls ``load_kernels()`` when it is built, so no frame pays for either and per-frame
 timings stay those of the steady state.
 
