@@ -35,10 +35,11 @@ from equipose.core.nearest import build_index, make_scratch, nearest_brute, near
 from equipose.core.metadata import FRAME_PRIOR_STEPS
 from equipose.runtime.rest_facet import rest_facet_up
 
-__all__ = ["FRAME_PRIOR_STEPS", "MAX_DEG", "parse_steps", "mirror_plane", "footprint_yaw", "apply_frame_priors"]
+__all__ = ["FRAME_PRIOR_STEPS", "MAX_DEG", "MIRROR_ITERS", "parse_steps", "mirror_plane", "footprint_yaw",
+           "apply_frame_priors"]
 
 MAX_DEG = 20.0                  # default bound on how far a step may turn the pose
-_MIRROR_ITERS = 15
+MIRROR_ITERS = 15
 _MIRROR_TRIM = 0.8              # pairs kept per iteration (the closest): asymmetric parts drop out
 _AXES = {"x": 0, "y": 1, "z": 2}
 
@@ -118,7 +119,7 @@ def _mirror_iterations(index, n0, cos_max, iters, trim) -> tuple:
     return n, d, d2.mean()
 
 
-def mirror_plane(points, normal, max_deg: float = MAX_DEG, iters: int = _MIRROR_ITERS) -> tuple:
+def mirror_plane(points, normal, max_deg: float = MAX_DEG, iters: int = MIRROR_ITERS) -> tuple:
     """Mirror plane of ``points`` near the plane through their centroid with unit normal ``normal`` [3].
 
     Each iteration reflects the cloud, pairs every point with its nearest neighbour among the reflections' sources
@@ -152,11 +153,11 @@ def footprint_yaw(points, rotation, max_deg: float = MAX_DEG):
     return R @ Rz, turn
 
 
-def apply_frame_priors(points, rotation, spec: dict, keep_up=None) -> tuple:
+def apply_frame_priors(points, rotation, spec: dict, keep_up=None, mirror_iters: int = MIRROR_ITERS) -> tuple:
     """Run the steps of ``spec`` ({"steps": [...], "mirror_axis": "x"|"y"|"z", "max_deg": float}) in order.
 
     ``keep_up``: a camera-frame unit direction the pose's +z must keep (the caller's up prior): the mirror step then
-    turns only about it. Returns (rotation [3, 3], {step: degrees turned, or None where the step left the pose}).
+    turns only about it. ``mirror_iters``: iterations of ``mirror_plane``. Returns (rotation [3, 3], {step: degrees turned, or None where the step left the pose}).
     """
     P, R = _check(points, rotation)
     steps = spec.get("steps") if isinstance(spec, dict) else None
@@ -176,7 +177,7 @@ def apply_frame_priors(points, rotation, spec: dict, keep_up=None) -> tuple:
                 R = rotation_between(R[:, 2], up) @ R
         else:                                                                # mirror
             a = _AXES[spec["mirror_axis"]]
-            n, _, _ = mirror_plane(P, R[:, a], max_deg)
+            n, _, _ = mirror_plane(P, R[:, a], max_deg, iters=mirror_iters)
             if keep_up is not None:
                 up = np.asarray(keep_up, np.float64)
                 n = n - (n @ up) * up

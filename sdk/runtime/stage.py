@@ -25,7 +25,7 @@ import numpy as np
 from equipose.core.errors import ConfigError
 
 __all__ = ["Stage", "ObjectState", "register_stage", "unregister_stage", "registered_stages", "stage_metadata_keys",
-           "STAGE_ORDER"]
+           "STAGE_ORDER", "cloud_points_option", "MIN_FIT_POINTS"]
 
 STAGE_ORDER: list = []          # stage names in run order (registration inserts each after its ``after``)
 _REGISTRY: dict = {}
@@ -87,6 +87,21 @@ def registered_stages() -> dict:
 def stage_metadata_keys() -> tuple:
     """The model metadata keys that switch registered stages on."""
     return tuple(c.metadata_key for c in registered_stages().values() if c.metadata_key)
+
+
+MIN_FIT_POINTS = 16            # the fewest points an ``int`` cloud-points option may ask for
+
+
+def cloud_points_option(stage: str, value) -> str | int:
+    """Check a stage's ``points`` option over the crop: "cloud" (every point of the crop), "input" (the model input's
+    N points) or an int n ≥ ``MIN_FIT_POINTS`` (the crop thinned by a regular stride to at most n points;
+    ``ObjectState.cloud_points``). Raises ``ConfigError``."""
+    if isinstance(value, str) and value in ("cloud", "input"):
+        return value
+    if isinstance(value, (int, np.integer)) and not isinstance(value, bool) and value >= MIN_FIT_POINTS:
+        return int(value)
+    raise ConfigError(f"{stage} points must be 'cloud', 'input' or an int ≥ {MIN_FIT_POINTS} (the crop thinned to at "
+                      f"most that many points), got {value!r}")
 
 
 @dataclass
@@ -152,6 +167,14 @@ class ObjectState:
     def every_point(self) -> np.ndarray:
         """[P, 3] every point FPS chose from (the whole crop, thinned), or the model input when that is all."""
         return self.prep.model_points if self.prep.cloud is None else self.prep.cloud
+
+    def cloud_points(self, choice: str | int) -> np.ndarray:
+        """[P', 3] the points a ``cloud_points_option`` names: "cloud" → ``every_point``, "input" → ``points``, n →
+        ``every_point`` thinned by a regular stride to at most n points (deterministic; the crop's own order)."""
+        if isinstance(choice, str):
+            return self.every_point if choice == "cloud" else self.points
+        cloud = self.every_point
+        return cloud[:: -(-len(cloud) // choice)] if len(cloud) > choice else cloud
 
     def set_pose(self, rotation, translation=None) -> None:
         """Replace the chosen pose (rotation [3, 3]; translation [3] model units, kept when None)."""

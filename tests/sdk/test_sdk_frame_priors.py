@@ -118,3 +118,40 @@ def test_choice_of_steps():
             {"steps": "mirror:x", "acc_5deg": 0.7, "median_deg": 1.5}]
     assert choose_frame_priors(rows) == "mirror:x"
     assert choose_frame_priors([rows[0], {"steps": "footprint", "acc_5deg": 0.6, "median_deg": 2.99}]) == "none"
+
+
+def test_stage_options_thin_the_cloud_and_set_the_mirror_iterations(tiny_model, tmp_path, rng):
+    from equipose.export.onnx_export import update_metadata
+    from equipose.runtime.stage import ObjectState
+    path = tmp_path / "fp.onnx"
+    shutil.copy(tiny_model, path)
+    update_metadata(path, frame_priors={"steps": ["mirror"], "mirror_axis": "x", "max_deg": 45.0})
+    est = PoseEstimator(path, stages={"frame_priors": {"points": 300, "mirror_iters": 4}})
+    assert est.pipeline.get("frame_priors").describe() == {"steps": ["mirror"], "points": 300, "mirror_iters": 4}
+    pts = _sofa(rng) * 0.05 + [0.0, 0.0, 0.7]                                  # [P, 3] m
+    from equipose.preprocess import prepare_points
+    prep = prepare_points(pts, est.num_points, est.scale)
+    state = ObjectState(prep=prep, R=np.zeros((0, 3, 3)), t=np.zeros((0, 3)), scores=np.zeros(0),
+                        canonical=np.zeros((4, 3)), template=np.zeros((4, 3)), symmetry="")
+    cloud = state.cloud_points("cloud")
+    thin = state.cloud_points(300)                                             # a regular stride of the crop
+    step = -(-len(cloud) // 300)
+    assert len(cloud) > 300 and len(thin) <= 300 and np.array_equal(thin, cloud[::step])
+    assert state.cloud_points(len(cloud)) is cloud and state.cloud_points("input") is prep.model_points
+    assert est.predict_points(pts).frame_priors is not None
+    for bad in ({"points": 8}, {"points": "all"}, {"points": True}, {"mirror_iters": 0}, {"mirror_iters": 2.5}):
+        with pytest.raises(errors.ConfigError, match="frame_priors"):
+            PoseEstimator(path, stages={"frame_priors": bad})
+
+
+def test_mirror_iterations_are_the_fit_s_iterations(rng):
+    from equipose.runtime.frame_priors import MIRROR_ITERS, mirror_plane
+    pts = _sofa(rng)
+    spec = {"steps": ["mirror"], "mirror_axis": "x", "max_deg": 45.0}
+    tilt = np.array([[np.cos(0.2), -np.sin(0.2), 0.0], [np.sin(0.2), np.cos(0.2), 0.0], [0.0, 0.0, 1.0]])
+    R_default, _ = apply_frame_priors(pts, tilt, spec)
+    R_full, _ = apply_frame_priors(pts, tilt, spec, mirror_iters=MIRROR_ITERS)
+    R_one, _ = apply_frame_priors(pts, tilt, spec, mirror_iters=1)
+    assert np.array_equal(R_default, R_full)
+    n_one = mirror_plane(pts, tilt[:, 0], 45.0, iters=1)[0]
+    assert np.allclose(R_one[:, 0], n_one, atol=1e-9)

@@ -1,7 +1,7 @@
 """Stage ``polish``: more ICP iterations on the selected pose after re-scoring, on every point of the crop.
 
 Options: ``iters`` ("auto": the file's ``refine_calibration`` polish when its re-scoring runs; 0 = off), ``points``
-("cloud": every point of the crop; "input": the model input's N points).
+("cloud": every point of the crop; "input": the model input's N points; n: the crop thinned to at most n points).
 
 Convention: ICP in the learned frame against the re-scoring's template, then calibrated (model units).
 """
@@ -12,7 +12,7 @@ from equipose.core.metadata import MAX_POLISH
 from equipose.core.geometry import nearest_rotation
 from equipose.core.errors import ConfigError
 from equipose.runtime.hypotheses import apply_calibration
-from equipose.runtime.stage import ObjectState, Stage, register_stage
+from equipose.runtime.stage import ObjectState, Stage, cloud_points_option, register_stage
 
 __all__ = ["PolishStage"]
 
@@ -23,7 +23,7 @@ class PolishStage(Stage):
     after = "select"
     options = {"iters": "auto", "points": "cloud"}
 
-    def __init__(self, iters: int, bidirectional: bool, points: str = "cloud"):
+    def __init__(self, iters: int, bidirectional: bool, points: str | int = "cloud"):
         self.iters, self.bidirectional, self.points = iters, bidirectional, points
 
     @classmethod
@@ -38,9 +38,8 @@ class PolishStage(Stage):
         elif n and rescore is None:
             raise ConfigError("polish is part of the ICP re-scoring (ICP iterations on the selected pose after "
                               "re-scoring): it needs refine > 0 (or leave polish='auto')")
-        if options["points"] not in ("cloud", "input"):
-            raise ConfigError(f"polish points must be 'cloud' or 'input', got {options['points']!r}")
-        return cls(n, not spec.partial, options["points"]) if n else None
+        points = cloud_points_option("polish", options["points"])
+        return cls(n, not spec.partial, points) if n else None
 
     def describe(self) -> dict:
         return {"iters": self.iters, "points": self.points}
@@ -50,7 +49,7 @@ class PolishStage(Stage):
             return
         i = state.selection.index
         R_l, t_l = state.learned
-        x = state.every_point if self.points == "cloud" else state.points
+        x = state.cloud_points(self.points)                                     # [P', 3]
         Rp, tp, _ = icp_multi(x, state.template, R_l[i][None], t_l[i][None], iters=self.iters,
                               bidirectional=self.bidirectional)
         Rp, tp = apply_calibration(Rp, tp, *state.calibration)                  # [1, 3, 3], [1, 3] category frame
