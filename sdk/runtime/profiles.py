@@ -4,7 +4,9 @@
 file was calibrated for; ``"default"`` the fastest settings measured to keep each model's accuracy within noise of
 ``"accurate"``; ``"fast"`` the network's own pose (no ICP) plus the stages that define what a result means (the
 turn classifier, the cylinder axis, the handle). Each profile holds options for all models
-(``"*"``) and per shipped model (its name); measured accuracy and latency per model: docs/benchmarks.md.
+(``"*"``) and per shipped model (its name); measured accuracy and latency per model: docs/benchmarks.md. A ``points``
+cap on the crop (polish, frame priors) at the size of the test sets' clouds (2048 points partial, 1024 complete) keeps
+the accuracy measured on them and bounds the cost on the larger crops of a camera frame (up to 4096 points).
 Options explicitly given to ``PoseEstimator`` (``refine=``, ``copies=``, ``stages=`` ...) win over the profile.
 """
 from __future__ import annotations
@@ -21,9 +23,17 @@ FAST = {"copies": False, "rescore": False, "view": False, "polish": False, "rest
 PROFILES: dict = {
     "accurate": {"*": {}},
     "default": {"*": {},                             # per model: settings measured within noise of accurate
-                "airplane-complete": {"flip": {"templates": 4}},                  # (docs/benchmarks.md, v0.24)
+                "airplane-complete": {"flip": {"templates": 4}},                  # (docs/benchmarks.md, v0.24, v0.28)
                 "airplane-partial": {"flip": {"template_points": 128}, "turn": {"points": 128}},
-                "car-complete": {"upright": {"points": 128}}},
+                "car-complete": {"upright": {"points": 128}, "rescore": {"iters": 15},
+                                 "frame_priors": {"mirror_iters": 8, "points": 1024}},
+                "chair-complete": {"frame_priors": {"points": 1024}},
+                "sofa-complete": {"rescore": {"iters": 15}, "frame_priors": {"points": 1024}},
+                "bottle-complete": {"rescore": {"iters": 15}},
+                "bottle-partial": {"rescore": {"iters": 15}},
+                "car-partial": {"polish": {"points": 1024}},
+                "sofa-partial": {"polish": {"points": 1024}},
+                "chair-partial": {"rescore": {"iters": 15}, "polish": {"iters": 15, "points": 2048}}},
     "fast": {"*": FAST},
 }
 

@@ -119,3 +119,23 @@ def test_changed_calibration_rebuilds_the_pipeline_and_keeps_its_settings(tiny_m
     R1 = est.predict_points(pts).rotation                                       # R_cat = R · δRᵀ
     np.testing.assert_allclose(R1, R0 @ turn.T, atol=1e-6)
     assert est.calibration_rotation is turn and (est.refine, est.refine_iters) == (3, 4)
+
+
+def test_every_profile_entry_names_a_shipped_model_and_builds():
+    """Each per-model profile entry is a shipped model whose pipeline accepts its options."""
+    from equipose.models import model_names
+    shipped = set(model_names())
+    for profile, table in PROFILES.items():
+        for model, options in table.items():
+            if model == "*":
+                continue
+            assert model in shipped, f"profile {profile!r} names {model!r}, which is not shipped"
+            est = PoseEstimator(model, threads=1, profile=profile)
+            info = {s["stage"]: s for s in est.pipeline_info}
+            for stage, opts in options.items():
+                if opts is False:
+                    assert stage not in info
+                    continue
+                for key, value in opts.items():                                 # the option reached the stage
+                    if key in info.get(stage, {}):
+                        assert info[stage][key] == value, (profile, model, stage, key)
