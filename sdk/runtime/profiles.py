@@ -31,7 +31,7 @@ PROFILES: dict = {
                 "sofa-complete": {"rescore": {"iters": 15}, "frame_priors": {"points": 1024}},
                 "bottle-complete": {"rescore": {"iters": 15}},
                 "bottle-partial": {"rescore": {"iters": 15}},
-                "car-partial": {"polish": {"points": 1024}},
+                "car-partial": {"polish": {"points": 2048}},
                 "sofa-partial": {"polish": {"points": 1024}},
                 "chair-partial": {"rescore": {"iters": 15}, "polish": {"iters": 15, "points": 2048}}},
     "fast": {"*": FAST},
