@@ -54,7 +54,7 @@ def input_name(spec: NeighbourhoodSpec) -> str:
 _NO_KEY = np.int64(0x7FFFFFFFFFFFFFFF)
 
 
-@njit(cache=True, fastmath=True)
+@njit(cache=True, fastmath=True, nogil=True)
 def _knn(points, support, centres, k, out):
     """``out`` [B, centres, k] int64 = the k nearest of the first ``support`` points for each of the first
     ``centres`` points of ``points`` [B, N, 3] float32, nearest first (squared float32 distances, lower index on ties).

@@ -24,7 +24,7 @@ __all__ = ["hypothesis_scores"]
 _FLOAT32_INF_BITS = 0x7F800000          # +inf as int32: non-negative float32 compare like their int32 bit patterns
 
 
-@njit(cache=True, fastmath=True)
+@njit(cache=True, fastmath=True, nogil=True)
 def _scores(points, shape, R, t, bidirectional, out):
     """``out`` [B, J] float32 = the scores (module docstring); ``points`` [B, N, 3], ``shape`` [B, M, 3] float32."""
     B, J, N, M = R.shape[0], R.shape[1], points.shape[1], shape.shape[1]

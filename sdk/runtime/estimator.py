@@ -9,7 +9,9 @@ Convention:
 """
 from __future__ import annotations
 
+import os
 import time
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
@@ -31,6 +33,7 @@ from equipose.runtime.session import INPUT_NAME, OUTPUT_NAMES, GraphIO, check_io
 __all__ = ["PoseEstimator", "INPUT_NAME", "OUTPUT_NAMES", "LIGHT_MODEL_MACS"]
 
 LIGHT_MODEL_MACS = 1e9      # below this per object, a single object runs on one onnxruntime thread (adaptive_threads)
+MAX_PARALLEL_RUNS = 8       # single-thread sessions a light model's batches are split over, at most
 
 
 def _ms(t0: float) -> float:  # milliseconds since t0
@@ -43,9 +46,11 @@ class PoseEstimator:
     Args:
         model_path: an ``.onnx`` file written by ``equipose export``, or a shipped model's name (``equipose models``).
         threads: onnxruntime intra-op thread budget (None = onnxruntime's default, the physical core count).
-        adaptive_threads: run single objects of a light model (< ``LIGHT_MODEL_MACS`` per object: every edge preset) on
-            one thread, batches on the whole budget: hundreds of small kernels gain nothing from a second thread
-            (docs/benchmarks.md). Attribute ``single_thread``: whether it applies.
+        adaptive_threads: run a light model (< ``LIGHT_MODEL_MACS`` per object: every edge preset) on single-thread
+            sessions: one object on one, a batch (objects × rotated copies) split into one part per thread of the
+            budget, the parts run side by side. Hundreds of small kernels gain little from a second thread inside
+            each kernel, and two parts side by side take 0.75× the time of one 2-thread run (docs/benchmarks.md,
+            v0.28). Attribute ``single_thread``: whether it applies.
         crop_options: defaults for ``equipose.preprocess.crop_points`` (e.g. ``{"max_depth": 2.0}``).
         top_k: hypotheses listed in each result.
         refine: ICP re-scoring (``equipose.runtime.refine``) of the ``refine`` best hypotheses against the predicted
@@ -116,7 +121,10 @@ class PoseEstimator:
         self.graph_io = GraphIO(self.session, self.metadata, path.name)        # neighbourhoods in, scores added
         macs = total_macs(ModelConfig.from_dict(self.metadata["model_config"]), partial=self.partial)
         self.single_thread = bool(adaptive_threads) and threads != 1 and macs < LIGHT_MODEL_MACS
-        self._single_session = open_session(path, 1) if self.single_thread else None  # ≈ 20 ms off the first call
+        parallel = max(1, min(threads or os.cpu_count() or 1, MAX_PARALLEL_RUNS)) if self.single_thread else 0
+        self._single_sessions = [open_session(path, 1) for _ in range(parallel)]   # ≈ 20 ms each off the first call
+        self._single_session = self._single_sessions[0] if parallel else None
+        self._pool = None                                                       # threads of the side-by-side parts
         self.instance = None
         self._build_pipeline()
         if model_points is not None:
@@ -162,8 +170,9 @@ class PoseEstimator:
         return self.pipeline.info()
 
     def uses_single_thread(self, batch: int) -> bool:
-        """Whether a run of ``batch`` objects goes to the 1-thread session (``adaptive_threads``)."""
-        return self.single_thread and batch == 1
+        """Whether a run of ``batch`` objects goes to one 1-thread session (``adaptive_threads``; larger batches run
+        in parts side by side, one per thread of the budget)."""
+        return self.single_thread and (batch == 1 or len(self._single_sessions) == 1)
 
     def __repr__(self):
         return (f"PoseEstimator({self.path.name!r}, category={self.category!r}, N={self.num_points}, "
@@ -187,7 +196,20 @@ class PoseEstimator:
         if self.static_batch is not None and x.shape[0] != self.static_batch:   # fixed-batch export: loop
             parts = [self.run_model(x[i:i + 1]) for i in range(x.shape[0])]
             return {k: np.concatenate([p[k] for p in parts]) for k in OUTPUT_NAMES}
-        session = self._single_session if self.uses_single_thread(x.shape[0]) else self.session
+        if self.uses_single_thread(x.shape[0]):
+            return self._run_session(self._single_session, x)
+        parts = min(len(self._single_sessions), x.shape[0])
+        if parts < 2:
+            return self._run_session(self.session, x)
+        if self._pool is None:
+            self._pool = ThreadPoolExecutor(len(self._single_sessions), thread_name_prefix="equipose-run")
+        chunks = np.array_split(x, parts)                                       # [B_i, N, 3] contiguous rows
+        runs = [self._pool.submit(self._run_session, sess, c) for sess, c in zip(self._single_sessions, chunks)]
+        outs = [r.result() for r in runs]                                       # onnxruntime releases the GIL
+        return {k: np.concatenate([o[k] for o in outs]) for k in OUTPUT_NAMES}
+
+    def _run_session(self, session, x: np.ndarray) -> dict:
+        """One onnxruntime run of ``x`` [B, N, 3] on ``session`` → the 4 ``OUTPUT_NAMES`` arrays."""
         io = self.graph_io
         feeds = io.feeds(x)                                                     # points (+ neighbourhoods)
         try:

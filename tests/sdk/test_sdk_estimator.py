@@ -253,5 +253,11 @@ def test_adaptive_threads_run_single_objects_on_one_thread_with_the_same_outputs
     b = fixed.predict(depth, K_VGA, mask=hit)
     np.testing.assert_allclose(a.rotation, b.rotation, atol=1e-5)
     assert a.hypothesis_index == b.hypothesis_index
-    two = est.predict_batch(depth, K_VGA, masks=[hit, hit])                     # a batch: the main session
+    assert len(est._single_sessions) == 2                                       # one per thread of the budget
+    assert all(s.get_session_options().intra_op_num_threads == 1 for s in est._single_sessions)
+    two = est.predict_batch(depth, K_VGA, masks=[hit, hit])                     # a batch: two parts side by side
     np.testing.assert_allclose(two[1].rotation, a.rotation, atol=1e-5)
+    x = np.random.default_rng(3).normal(size=(5, est.num_points, 3)).astype(np.float32) * 0.3
+    split, whole = est.run_model(x), fixed.run_model(x)                         # parts of 3 + 2 rows, in order
+    for k in whole:
+        np.testing.assert_allclose(split[k], whole[k], atol=1e-5)
