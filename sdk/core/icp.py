@@ -18,6 +18,8 @@ from numba import njit
 from equipose.core.errors import InvalidPointsError
 from equipose.core.eigen import top_eigenvector
 from equipose.core.nearest import build_index, make_scratch, nearest_brute, nearest_tree
+from equipose.core.parallel import run_parts, split_ranges
+from equipose.core.parallel import workers as workers_in_scope
 
 __all__ = ["kabsch", "icp_multi"]
 
@@ -91,7 +93,7 @@ def _add_pair(S, ss, ds, Y, m, x, n):
             S[a, b] += Y[m, a] * x[n, b]
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _icp_loop(x, Y, which, R, t, iters, bidirectional, hold_axis, up, res):
     """The ICP of every start, in place on R [J, 3, 3], t [J, 3], res [J] (see ``icp_multi``)."""
     N, M = x.shape[0], Y.shape[1]
@@ -165,7 +167,7 @@ def _icp_loop(x, Y, which, R, t, iters, bidirectional, hold_axis, up, res):
 
 
 def icp_multi(observed: np.ndarray, template: np.ndarray, R0: np.ndarray, t0: np.ndarray, iters: int = 30,
-              bidirectional: bool = False, which=None, hold=None) -> tuple:
+              bidirectional: bool = False, which=None, hold=None, workers: int | None = None) -> tuple:
     """ICP from several starts at once.
 
     Convention: ``observed`` [N ≥ 3, 3]; ``template`` [M ≥ 3, 3], or [T, M, 3] with ``which`` [J] the template of
@@ -180,6 +182,9 @@ def icp_multi(observed: np.ndarray, template: np.ndarray, R0: np.ndarray, t0: np
 
     Each update is the least-squares rigid fit of all pairs (observed → template, and template → observed when
     bidirectional), accumulated without storing them: H = Σ s dᵀ − K s̄ d̄ᵀ over the K pairs of a start.
+
+    ``workers``: the starts run in up to that many contiguous parts side by side (``equipose.core.parallel``; None:
+    the caller's ``kernel_workers`` scope, 1 outside one); every start's result is the same either way.
     """
     x = np.ascontiguousarray(observed, np.float64)                             # [N, 3]
     Y = np.asarray(template, np.float64)
@@ -198,6 +203,7 @@ def icp_multi(observed: np.ndarray, template: np.ndarray, R0: np.ndarray, t0: np
         axis, up = int(hold[0]), np.asarray(hold[1], np.float64)
         up = np.ascontiguousarray(up / np.linalg.norm(up))
     res = np.zeros(J)
-    if J:
-        _icp_loop(x, Y, which, R, t, int(iters), bool(bidirectional), axis, up, res)
+    parts = split_ranges(J, workers_in_scope() if workers is None else workers) if J else []
+    run_parts(_icp_loop, [(x, Y, which[a:b], R[a:b], t[a:b], int(iters), bool(bidirectional), axis, up, res[a:b])
+                          for a, b in parts])                                   # in place on views of R, t, res
     return R, t, res

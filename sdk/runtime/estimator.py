@@ -11,13 +11,13 @@ from __future__ import annotations
 
 import os
 import time
-from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
 from equipose import preprocess as _crop
 from equipose.core.errors import ConfigError, EquiposeError, InvalidPointsError, ModelFormatError, RegionError
 from equipose.core.metadata import decode_metadata
+from equipose.core.parallel import MAX_WORKERS, kernel_workers, run_parts, split_ranges
 from equipose.core.presets import ModelConfig, total_macs
 from equipose.runtime.instance import INSTANCE_ITERS, build_instance_model
 from equipose.runtime.kernels import load_kernels
@@ -33,7 +33,6 @@ from equipose.runtime.session import INPUT_NAME, OUTPUT_NAMES, GraphIO, check_io
 __all__ = ["PoseEstimator", "INPUT_NAME", "OUTPUT_NAMES", "LIGHT_MODEL_MACS"]
 
 LIGHT_MODEL_MACS = 1e9      # below this per object, a single object runs on one onnxruntime thread (adaptive_threads)
-MAX_PARALLEL_RUNS = 8       # single-thread sessions a light model's batches are split over, at most
 
 
 def _ms(t0: float) -> float:  # milliseconds since t0
@@ -45,7 +44,8 @@ class PoseEstimator:
 
     Args:
         model_path: an ``.onnx`` file written by ``equipose export``, or a shipped model's name (``equipose models``).
-        threads: onnxruntime intra-op thread budget (None = onnxruntime's default, the physical core count).
+        threads: the thread budget (None = the core count): onnxruntime's intra-op threads, and how many parts run
+            side by side (batch parts, the starts of one ICP call; ``equipose.core.parallel``).
         adaptive_threads: run a light model (< ``LIGHT_MODEL_MACS`` per object: every edge preset) on single-thread
             sessions: one object on one, a batch (objects × rotated copies) split into one part per thread of the
             budget, the parts run side by side. Hundreds of small kernels gain little from a second thread inside
@@ -121,10 +121,10 @@ class PoseEstimator:
         self.graph_io = GraphIO(self.session, self.metadata, path.name)        # neighbourhoods in, scores added
         macs = total_macs(ModelConfig.from_dict(self.metadata["model_config"]), partial=self.partial)
         self.single_thread = bool(adaptive_threads) and threads != 1 and macs < LIGHT_MODEL_MACS
-        parallel = max(1, min(threads or os.cpu_count() or 1, MAX_PARALLEL_RUNS)) if self.single_thread else 0
+        self.workers = max(1, min(threads or os.cpu_count() or 1, MAX_WORKERS))   # parts side by side, at most
+        parallel = self.workers if self.single_thread else 0
         self._single_sessions = [open_session(path, 1) for _ in range(parallel)]   # ≈ 20 ms each off the first call
         self._single_session = self._single_sessions[0] if parallel else None
-        self._pool = None                                                       # threads of the side-by-side parts
         self.instance = None
         self._build_pipeline()
         if model_points is not None:
@@ -198,15 +198,11 @@ class PoseEstimator:
             return {k: np.concatenate([p[k] for p in parts]) for k in OUTPUT_NAMES}
         if self.uses_single_thread(x.shape[0]):
             return self._run_session(self._single_session, x)
-        parts = min(len(self._single_sessions), x.shape[0])
-        if parts < 2:
+        parts = split_ranges(x.shape[0], len(self._single_sessions))
+        if len(parts) < 2:
             return self._run_session(self.session, x)
-        if self._pool is None:
-            self._pool = ThreadPoolExecutor(len(self._single_sessions), thread_name_prefix="equipose-run")
-        chunks = np.array_split(x, parts)                                       # [B_i, N, 3] contiguous rows
-        runs = [self._pool.submit(self._run_session, sess, c) for sess, c in zip(self._single_sessions, chunks)]
-        outs = [r.result() for r in runs]                                       # onnxruntime releases the GIL
-        return {k: np.concatenate([o[k] for o in outs]) for k in OUTPUT_NAMES}
+        outs = run_parts(self._run_session, [(sess, x[a:b]) for sess, (a, b) in zip(self._single_sessions, parts)])
+        return {k: np.concatenate([o[k] for o in outs]) for k in OUTPUT_NAMES}  # onnxruntime releases the GIL
 
     def _run_session(self, session, x: np.ndarray) -> dict:
         """One onnxruntime run of ``x`` [B, N, 3] on ``session`` → the 4 ``OUTPUT_NAMES`` arrays."""
@@ -225,8 +221,9 @@ class PoseEstimator:
         """Outputs of batch item ``b`` → (PoseResult without timings, selection ms)."""
         if self.instance is not None and up is not None:
             raise ConfigError("the up prior does not apply in instance-level mode (model_points): leave up=None")
-        return self._current_pipeline().run(outputs, b, prep, prefer=prefer, prefer_margin=prefer_margin, up=up,
-                                            category=self.category, top_k=self.top_k, crop=crop)
+        with kernel_workers(self.workers):                                      # multi-start ICP side by side
+            return self._current_pipeline().run(outputs, b, prep, prefer=prefer, prefer_margin=prefer_margin, up=up,
+                                                category=self.category, top_k=self.top_k, crop=crop)
 
     def predict_points(self, points, *, up=None) -> PoseResult:
         """Pose of one object from its points.

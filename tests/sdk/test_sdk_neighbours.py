@@ -9,6 +9,7 @@ from scipy.spatial.transform import Rotation
 from equipose import errors
 from equipose.core.icp import icp_multi, kabsch
 from equipose.core.neighbours import NearestNeighbours
+from equipose.core.parallel import kernel_workers
 
 
 @pytest.mark.parametrize("brute_max", [0, 10_000])                              # the tree, brute force
@@ -57,6 +58,12 @@ def test_batched_icp_starts_are_independent_and_converge(rng, bidirectional):
         np.testing.assert_allclose(rj[0], res[j], atol=1e-15)
     best = int(np.argmin(res))
     assert np.degrees(np.arccos(np.clip((np.trace(R[best].T @ R_true) - 1) / 2, -1, 1))) < 0.5
+    for workers in (2, 3, 8):                                                   # starts in parts side by side
+        Rw, tw, rw = icp_multi(x, Y, starts, t0, iters=60, bidirectional=bidirectional, workers=workers)
+        assert np.array_equal(Rw, R) and np.array_equal(tw, t) and np.array_equal(rw, res)
+    with kernel_workers(4):                                                     # or as many as the scope allows
+        Rw, _, rw = icp_multi(x, Y, starts, t0, iters=60, bidirectional=bidirectional)
+    assert np.array_equal(Rw, R) and np.array_equal(rw, res)
 
 
 def _numpy_icp(x, Y, R, t, iters, bidirectional):

@@ -1,0 +1,74 @@
+"""Independent parts of one job run side by side on a small shared pool of threads.
+
+For work that leaves Python's GIL while it runs: compiled kernels declared ``nogil`` (the batched ICP) and
+onnxruntime sessions. The number of parts a caller may use is scoped with ``kernel_workers(n)``, a context variable
+(each thread and task sees its own; 1 outside any scope and inside the pool's own threads, so parts never nest).
+Idle pool threads block instead of spinning: a waiting pool takes no time from onnxruntime or Python.
+
+Convention: ``run_parts`` keeps the order of its parts; the first part runs in the calling thread.
+"""
+from __future__ import annotations
+
+import contextlib
+import contextvars
+import threading
+from concurrent.futures import ThreadPoolExecutor
+
+__all__ = ["MAX_WORKERS", "kernel_workers", "workers", "split_ranges", "run_parts"]
+
+MAX_WORKERS = 8                 # parts side by side, at most (the pool's size + the calling thread)
+
+_WORKERS: contextvars.ContextVar = contextvars.ContextVar("equipose_kernel_workers", default=1)
+_POOL: ThreadPoolExecutor | None = None
+_POOL_LOCK = threading.Lock()
+
+
+@contextlib.contextmanager
+def kernel_workers(n: int):
+    """Within this block, ``workers()`` is ``n`` (clipped to 1 … ``MAX_WORKERS``)."""
+    token = _WORKERS.set(max(1, min(int(n), MAX_WORKERS)))
+    try:
+        yield
+    finally:
+        _WORKERS.reset(token)
+
+
+def workers() -> int:
+    """Parts the current scope may run side by side (``kernel_workers``; 1 by default)."""
+    return _WORKERS.get()
+
+
+def split_ranges(count: int, parts: int) -> list:
+    """``count`` items as at most ``parts`` contiguous (start, stop) ranges of near-equal size, in order."""
+    parts = max(1, min(int(parts), int(count)))
+    base, extra = divmod(int(count), parts)
+    out, start = [], 0
+    for p in range(parts):
+        stop = start + base + (p < extra)
+        out.append((start, stop))
+        start = stop
+    return out
+
+
+def _pool() -> ThreadPoolExecutor:
+    global _POOL
+    with _POOL_LOCK:
+        if _POOL is None:
+            _POOL = ThreadPoolExecutor(MAX_WORKERS - 1, thread_name_prefix="equipose-part")
+        return _POOL
+
+
+def run_parts(fn, arg_lists: list) -> list:
+    """[fn(*args) for args in ``arg_lists``], the parts side by side (the first in this thread); an exception of any
+    part is raised here after every part has finished."""
+    if len(arg_lists) <= 1:
+        return [fn(*args) for args in arg_lists]
+    futures = [_pool().submit(fn, *args) for args in arg_lists[1:]]
+    try:
+        first = fn(*arg_lists[0])
+    finally:
+        rest = [f.exception() for f in futures]                               # wait for all before raising
+    for err in rest:
+        if err is not None:
+            raise err
+    return [first] + [f.result() for f in futures]

@@ -1,0 +1,51 @@
+"""Parts side by side (``equipose.core.parallel``): ranges cover the items in order, results keep their order,
+the scope sets how many parts a caller may use, and a part's error reaches the caller."""
+import threading
+
+import pytest
+
+from equipose.core.parallel import MAX_WORKERS, kernel_workers, run_parts, split_ranges, workers
+
+
+@pytest.mark.parametrize("count, parts", [(1, 2), (5, 2), (6, 3), (7, 8), (16, 3)])
+def test_split_ranges_cover_the_items_in_order(count, parts):
+    ranges = split_ranges(count, parts)
+    assert len(ranges) == min(count, parts)
+    assert ranges[0][0] == 0 and ranges[-1][1] == count
+    assert all(a[1] == b[0] for a, b in zip(ranges, ranges[1:]))                # contiguous
+    sizes = [b - a for a, b in ranges]
+    assert max(sizes) - min(sizes) <= 1 and min(sizes) >= 1
+
+
+def test_run_parts_keeps_order_and_uses_other_threads():
+    seen = {}
+
+    def part(i):
+        seen[i] = threading.get_ident()
+        return i * i
+
+    assert run_parts(part, [(i,) for i in range(5)]) == [0, 1, 4, 9, 16]
+    assert seen[0] == threading.get_ident()                                     # the first part runs here
+    assert all(seen[i] != threading.get_ident() for i in range(1, 5))          # the others on the pool
+    assert run_parts(part, []) == [] and run_parts(part, [(3,)]) == [9]
+
+
+def test_scope_sets_the_workers_and_parts_do_not_nest():
+    assert workers() == 1
+    with kernel_workers(3):
+        assert workers() == 3
+        inner = run_parts(lambda: workers(), [(), (), ()])
+        assert inner[0] == 3 and inner[1:] == [1, 1]                            # pool threads: their own scope
+        with kernel_workers(100):
+            assert workers() == MAX_WORKERS
+    assert workers() == 1
+
+
+def test_a_part_s_error_reaches_the_caller():
+    def part(i):
+        if i == 2:
+            raise ValueError("part 2 failed")
+        return i
+
+    with pytest.raises(ValueError, match="part 2"):
+        run_parts(part, [(0,), (1,), (2,)])
