@@ -6,6 +6,10 @@ onnxruntime sessions. The number of parts a caller may use is scoped with ``kern
 Idle pool threads block instead of spinning: a waiting pool takes no time from onnxruntime or Python.
 
 Convention: ``run_parts`` keeps the order of its parts; the first part runs in the calling thread.
+
+``single_thread_blas()`` scopes numpy's BLAS (OpenBLAS) to one thread: its own worker threads spin for a while after
+each threaded product and took the cores from the next frame's side-by-side onnxruntime runs (sofa-partial: 8-copy
+inference 27 → 40 ms after the turn classifier's products); the pipeline's products are too small to gain from them.
 """
 from __future__ import annotations
 
@@ -14,13 +18,14 @@ import contextvars
 import threading
 from concurrent.futures import ThreadPoolExecutor
 
-__all__ = ["MAX_WORKERS", "kernel_workers", "workers", "split_ranges", "run_parts"]
+__all__ = ["MAX_WORKERS", "kernel_workers", "workers", "split_ranges", "run_parts", "single_thread_blas"]
 
 MAX_WORKERS = 8                 # parts side by side, at most (the pool's size + the calling thread)
 
 _WORKERS: contextvars.ContextVar = contextvars.ContextVar("equipose_kernel_workers", default=1)
 _POOL: ThreadPoolExecutor | None = None
 _POOL_LOCK = threading.Lock()
+_BLAS = None                    # threadpoolctl's controller of the loaded BLAS libraries, found once
 
 
 @contextlib.contextmanager
@@ -72,3 +77,12 @@ def run_parts(fn, arg_lists: list) -> list:
         if err is not None:
             raise err
     return [first] + [f.result() for f in futures]
+
+
+def single_thread_blas():
+    """A context in which numpy's BLAS runs on one thread (``threadpoolctl``; the libraries are looked up once)."""
+    global _BLAS
+    if _BLAS is None:
+        from threadpoolctl import ThreadpoolController
+        _BLAS = ThreadpoolController()
+    return _BLAS.limit(limits=1, user_api="blas")

@@ -17,7 +17,7 @@ import numpy as np
 from equipose import preprocess as _crop
 from equipose.core.errors import ConfigError, EquiposeError, InvalidPointsError, ModelFormatError, RegionError
 from equipose.core.metadata import decode_metadata
-from equipose.core.parallel import MAX_WORKERS, kernel_workers, run_parts, split_ranges
+from equipose.core.parallel import MAX_WORKERS, kernel_workers, run_parts, single_thread_blas, split_ranges
 from equipose.core.presets import ModelConfig, total_macs
 from equipose.runtime.instance import INSTANCE_ITERS, build_instance_model
 from equipose.runtime.kernels import load_kernels
@@ -221,7 +221,7 @@ class PoseEstimator:
         """Outputs of batch item ``b`` → (PoseResult without timings, selection ms)."""
         if self.instance is not None and up is not None:
             raise ConfigError("the up prior does not apply in instance-level mode (model_points): leave up=None")
-        with kernel_workers(self.workers):                                      # multi-start ICP side by side
+        with kernel_workers(self.workers), single_thread_blas():                # multi-start ICP side by side
             return self._current_pipeline().run(outputs, b, prep, prefer=prefer, prefer_margin=prefer_margin, up=up,
                                                 category=self.category, top_k=self.top_k, crop=crop)
 

@@ -49,3 +49,16 @@ def test_a_part_s_error_reaches_the_caller():
 
     with pytest.raises(ValueError, match="part 2"):
         run_parts(part, [(0,), (1,), (2,)])
+
+
+def test_single_thread_blas_scopes_numpy_s_blas_to_one_thread():
+    threadpoolctl = pytest.importorskip("threadpoolctl")
+    from equipose.core.parallel import single_thread_blas
+
+    def blas_threads():
+        return [i["num_threads"] for i in threadpoolctl.threadpool_info() if i["user_api"] == "blas"]
+
+    before = blas_threads()
+    with single_thread_blas():
+        assert blas_threads() and all(n == 1 for n in blas_threads())
+    assert blas_threads() == before
