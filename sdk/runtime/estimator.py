@@ -49,7 +49,7 @@ class PoseEstimator:
         adaptive_threads: run a light model (< ``LIGHT_MODEL_MACS`` per object: every edge preset) on single-thread
             sessions: one object on one, a batch (objects × rotated copies) split into one part per thread of the
             budget, the parts run side by side. Hundreds of small kernels gain little from a second thread inside
-            each kernel, and two parts side by side take 0.75× the time of one 2-thread run (docs/benchmarks.md,
+            each kernel, and two parts side by side take about 0.7× the time of one 2-thread run (docs/benchmarks.md,
             v0.28). Attribute ``single_thread``: whether it applies.
         crop_options: defaults for ``equipose.preprocess.crop_points`` (e.g. ``{"max_depth": 2.0}``).
         top_k: hypotheses listed in each result.
