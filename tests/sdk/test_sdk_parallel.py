@@ -62,3 +62,28 @@ def test_single_thread_blas_scopes_numpy_s_blas_to_one_thread():
     with single_thread_blas():
         assert blas_threads() and all(n == 1 for n in blas_threads())
     assert blas_threads() == before
+
+
+@pytest.mark.skipif(not hasattr(__import__("os"), "fork"), reason="needs os.fork")
+def test_a_forked_child_runs_parts_on_its_own_pool():
+    import os
+    assert run_parts(lambda i: i + 1, [(0,), (1,)]) == [1, 2]                   # the parent's pool exists now
+    r, w = os.pipe()
+    pid = os.fork()
+    if pid == 0:                                                                # child: would hang on the parent's pool
+        try:
+            ok = run_parts(lambda i: i * 2, [(1,), (2,), (3,)]) == [2, 4, 6]
+            os.write(w, b"1" if ok else b"0")
+        finally:
+            os._exit(0)
+    os.close(w)
+    import signal
+    import time
+    deadline = time.monotonic() + 30.0
+    while os.waitpid(pid, os.WNOHANG) == (0, 0):                               # a hung child fails, not blocks
+        if time.monotonic() > deadline:
+            os.kill(pid, signal.SIGKILL)
+            os.waitpid(pid, 0)
+            pytest.fail("the forked child hung on its parent's pool")
+        time.sleep(0.05)
+    assert os.read(r, 1) == b"1"
