@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import contextlib
 import contextvars
+import os
 import threading
 from concurrent.futures import ThreadPoolExecutor
 
@@ -61,6 +62,16 @@ def _pool() -> ThreadPoolExecutor:
         if _POOL is None:
             _POOL = ThreadPoolExecutor(MAX_WORKERS - 1, thread_name_prefix="equipose-part")
         return _POOL
+
+
+def _forget_pool_in_child() -> None:
+    """A forked child has none of its parent's threads (its copy of the pool would queue parts that never run): it
+    starts its own pool when it first needs one."""
+    global _POOL, _POOL_LOCK
+    _POOL, _POOL_LOCK = None, threading.Lock()
+
+
+os.register_at_fork(after_in_child=_forget_pool_in_child)
 
 
 def run_parts(fn, arg_lists: list) -> list:
