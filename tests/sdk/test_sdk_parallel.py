@@ -67,7 +67,8 @@ def test_single_thread_blas_scopes_numpy_s_blas_to_one_thread():
 @pytest.mark.skipif(not hasattr(__import__("os"), "fork"), reason="needs os.fork")
 def test_a_forked_child_runs_parts_on_its_own_pool():
     import os
-    assert run_parts(lambda i: i + 1, [(0,), (1,)]) == [1, 2]                   # the parent's pool exists now
+    # the parent's pool with all its threads started: a child copying it would queue parts that never run
+    assert run_parts(lambda i: i + 1, [(i,) for i in range(MAX_WORKERS)]) == list(range(1, MAX_WORKERS + 1))
     r, w = os.pipe()
     pid = os.fork()
     if pid == 0:                                                                # child: would hang on the parent's pool
