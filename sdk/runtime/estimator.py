@@ -124,7 +124,6 @@ class PoseEstimator:
         self.workers = max(1, min(threads or os.cpu_count() or 1, MAX_WORKERS))   # parts side by side, at most
         parallel = self.workers if self.single_thread else 0
         self._single_sessions = [open_session(path, 1) for _ in range(parallel)]   # ≈ 20 ms each off the first call
-        self._single_session = self._single_sessions[0] if parallel else None
         self.instance = None
         self._build_pipeline()
         if model_points is not None:
@@ -197,7 +196,7 @@ class PoseEstimator:
             parts = [self.run_model(x[i:i + 1]) for i in range(x.shape[0])]
             return {k: np.concatenate([p[k] for p in parts]) for k in OUTPUT_NAMES}
         if self.uses_single_thread(x.shape[0]):
-            return self._run_session(self._single_session, x)
+            return self._run_session(self._single_sessions[0], x)
         parts = split_ranges(x.shape[0], len(self._single_sessions))
         if len(parts) < 2:
             return self._run_session(self.session, x)

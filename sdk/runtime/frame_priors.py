@@ -157,7 +157,8 @@ def apply_frame_priors(points, rotation, spec: dict, keep_up=None, mirror_iters:
     """Run the steps of ``spec`` ({"steps": [...], "mirror_axis": "x"|"y"|"z", "max_deg": float}) in order.
 
     ``keep_up``: a camera-frame unit direction the pose's +z must keep (the caller's up prior): the mirror step then
-    turns only about it. ``mirror_iters``: iterations of ``mirror_plane``. Returns (rotation [3, 3], {step: degrees turned, or None where the step left the pose}).
+    turns only about it. ``mirror_iters``: iterations of ``mirror_plane``. Returns (rotation [3, 3], {step: degrees
+    turned, or None where the step left the pose}).
     """
     P, R = _check(points, rotation)
     steps = spec.get("steps") if isinstance(spec, dict) else None

@@ -24,7 +24,8 @@ PROFILES: dict = {
     "accurate": {"*": {}},
     "default": {"*": {},                             # per model: settings measured within noise of accurate
                 "airplane-complete": {"flip": {"templates": 4}},                  # (docs/benchmarks.md, v0.24, v0.28)
-                "airplane-partial": {"flip": {"template_points": 128}, "turn": {"points": 128}, "rescore": {"iters": 15}},
+                "airplane-partial": {"flip": {"template_points": 128}, "turn": {"points": 128},
+                                     "rescore": {"iters": 15}},
                 "car-complete": {"upright": {"points": 128}, "rescore": {"iters": 15},
                                  "frame_priors": {"mirror_iters": 8, "points": 1024}},
                 "chair-complete": {"frame_priors": {"points": 1024}},

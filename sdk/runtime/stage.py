@@ -169,8 +169,8 @@ class ObjectState:
         return self.prep.model_points if self.prep.cloud is None else self.prep.cloud
 
     def cloud_points(self, choice: str | int) -> np.ndarray:
-        """[P', 3] the points a ``cloud_points_option`` names: "cloud" → ``every_point``, "input" → ``points``, n →
-        ``every_point`` thinned by a regular stride to at most n points (deterministic; the crop's own order)."""
+        """[P', 3] the points a ``cloud_points_option`` names: "cloud" → ``every_point``, "input" → ``points``,
+        n → ``every_point`` thinned by a regular stride to at most n points (deterministic; the crop's own order)."""
         if isinstance(choice, str):
             return self.every_point if choice == "cloud" else self.points
         cloud = self.every_point

@@ -245,10 +245,10 @@ def test_adaptive_threads_run_single_objects_on_one_thread_with_the_same_outputs
     from equipose import PoseEstimator
     depth, hit = scene
     est = PoseEstimator(tiny_model, threads=2)                                  # tiny: a light model
-    assert est.single_thread and est._single_session is not None
+    assert est.single_thread and est._single_sessions
     fixed = PoseEstimator(tiny_model, threads=2, adaptive_threads=False)
     assert not fixed.single_thread and not PoseEstimator(tiny_model, threads=1).single_thread
-    assert est._single_session.get_session_options().intra_op_num_threads == 1
+    assert est._single_sessions[0].get_session_options().intra_op_num_threads == 1
     a = est.predict(depth, K_VGA, mask=hit)
     b = fixed.predict(depth, K_VGA, mask=hit)
     np.testing.assert_allclose(a.rotation, b.rotation, atol=1e-5)

@@ -33,8 +33,8 @@ class FramePriorsStage(Stage):
         if isinstance(iters, str) and iters == "auto":
             iters = MIRROR_ITERS
         elif isinstance(iters, bool) or not isinstance(iters, int) or iters < 1:
-            raise ConfigError(f"frame_priors mirror_iters must be 'auto' or an int ≥ 1 (iterations of the mirror-plane "
-                              f"fit), got {iters!r}")
+            raise ConfigError(f"frame_priors mirror_iters must be 'auto' or an int ≥ 1 (iterations of the "
+                              f"mirror-plane fit), got {iters!r}")
         return None if fp is None else cls(fp, points, iters)
 
     def describe(self) -> dict:
