@@ -43,7 +43,7 @@ def save_checkpoint(path, model: EquiPoseNet, *, category: str, scale: float, sy
         "format": CHECKPOINT_FORMAT, "model_config": model.config.to_dict(), "partial": model.partial,
         "category": category, "scale": float(scale), "symmetry": symmetry,
         "state_dict": {k: v.detach().cpu() for k, v in model.state_dict().items()}, "step": int(step),
-        "optimizer": optimizer.state_dict() if optimizer is not None else None,
+        "optimizer": _on_cpu(optimizer.state_dict()) if optimizer is not None else None,
         "calibration": calibration, "training": training or {}, "metrics": metrics or {},
     }
     if extra:
@@ -52,6 +52,18 @@ def save_checkpoint(path, model: EquiPoseNet, *, category: str, scale: float, sy
     torch.save(state, tmp)
     os.replace(tmp, path)
     return path
+
+
+def _on_cpu(tree):
+    """``tree`` (nested dicts / lists of tensors, e.g. an optimiser state) with every tensor on the CPU, so a
+    checkpoint written on a GPU loads with a plain ``torch.load`` anywhere."""
+    if torch.is_tensor(tree):
+        return tree.detach().cpu()
+    if isinstance(tree, dict):
+        return {k: _on_cpu(v) for k, v in tree.items()}
+    if isinstance(tree, (list, tuple)):
+        return type(tree)(_on_cpu(v) for v in tree)
+    return tree
 
 
 def load_checkpoint(path) -> dict:
