@@ -32,6 +32,7 @@ from equipose.core.errors import ConfigError, InvalidPointsError
 from equipose.core.geometry import axis_angle_deg, nearest_rotation, rotation_between
 from equipose.core.eigen import top_eigenvector
 from equipose.core.nearest import build_index, make_scratch, nearest_brute, nearest_tree
+from equipose.core.parallel import run_parts, split_ranges, workers
 from equipose.core.metadata import FRAME_PRIOR_STEPS
 from equipose.runtime.rest_facet import rest_facet_up
 
@@ -70,48 +71,72 @@ def _check(points, rotation) -> tuple:
     return P, R
 
 
-@njit(cache=True)
-def _mirror_iterations(index, n0, cos_max, iters, trim) -> tuple:
-    """The iterations of ``mirror_plane`` on the nearest-neighbour ``index`` of the cloud (its set 0):
-    (normal [3], offset, mean squared reflection residual)."""
+@njit(cache=True, nogil=True)
+def _reflect_and_pair(index, n, d, lo, hi, pair, d2) -> None:
+    """For the cloud points ``lo`` … ``hi`` of the ``index`` (its set 0): the nearest cloud point to each one's
+    reflection in the plane n·x = d (``pair``, warm-started from its previous value) and the squared distance
+    (``d2``). Parts over disjoint ranges may run side by side."""
     P, soa, centre, tpoints, ids, nodes, split = index
     X = P[0]                                                                   # [P, 3]
-    npts = len(X)
-    stack, bound, dist, bits = make_scratch(npts)
-    pair, d2 = np.full(npts, -1, np.int64), np.empty(npts)
+    stack, bound, dist, bits = make_scratch(len(X))
     q = np.empty(3)
+    for i in range(lo, hi):                                                   # reflection of X[i], its partner
+        s = 2.0 * (X[i, 0] * n[0] + X[i, 1] * n[1] + X[i, 2] * n[2] - d)
+        q[0], q[1], q[2] = X[i, 0] - s * n[0], X[i, 1] - s * n[1], X[i, 2] - s * n[2]
+        if tpoints.shape[1]:
+            j = nearest_tree(tpoints, ids, nodes, split, 0, q, pair[i], stack, bound)
+        else:
+            j = nearest_brute(soa, centre, 0, q, dist, bits)
+        pair[i] = j
+        d2[i] = (X[j, 0] - q[0]) ** 2 + (X[j, 1] - q[1]) ** 2 + (X[j, 2] - q[2]) ** 2
+
+
+@njit(cache=True)
+def _plane_from_pairs(X, pair, d2, n, n0, trim) -> tuple:
+    """One mirror-plane update from the closest ``trim`` of the pairs X[i] ↔ X[pair[i]]: (normal [3] signed like
+    ``n``, offset, cosine of its angle to ``n0``)."""
+    cut = np.quantile(np.sqrt(d2), trim)
+    S, mid, kept = np.zeros((3, 3)), np.zeros(3), 0
+    for i in range(len(X)):                                                   # the closest pairs a ↔ b
+        if np.sqrt(d2[i]) <= cut:
+            j = pair[i]
+            for a in range(3):
+                mid[a] += 0.5 * (X[i, a] + X[j, a])
+                for b in range(3):
+                    S[a, b] += (X[i, a] - X[j, a]) * (X[i, b] - X[j, b])
+            kept += 1
+    v = top_eigenvector(S)                                                    # dominant pair direction
+    sign = v[0] * n[0] + v[1] * n[1] + v[2] * n[2]
+    cand = v * (-1.0 if sign < 0.0 else 1.0)                                   # signed like n
+    d_new = (mid[0] * cand[0] + mid[1] * cand[1] + mid[2] * cand[2]) / kept
+    return cand, d_new, cand[0] * n0[0] + cand[1] * n0[1] + cand[2] * n0[2]
+
+
+@njit(cache=True)
+def _centroid_offset(X, n) -> float:
+    """Offset of the plane with normal ``n`` through the centroid of ``X`` [P, 3]."""
+    return X[:, 0].mean() * n[0] + X[:, 1].mean() * n[1] + X[:, 2].mean() * n[2]
+
+
+def _mirror_iterations(X, n0, cos_max, iters, trim) -> tuple:
+    """The iterations of ``mirror_plane`` on the cloud ``X`` [P, 3] float64: (normal [3], offset, mean squared
+    reflection residual). The reflect-and-pair pass (the cost: one nearest-neighbour query per point) runs in parts
+    side by side (``equipose.core.parallel``: the caller's ``kernel_workers`` scope); the result does not depend on
+    the number of parts."""
+    index = build_index(X[None])
+    pair, d2 = np.full(len(X), -1, np.int64), np.empty(len(X))
+    parts = split_ranges(len(X), workers())
 
     def reflect_and_pair(n, d):
-        for i in range(npts):                                                 # reflection of X[i], its partner
-            s = 2.0 * (X[i, 0] * n[0] + X[i, 1] * n[1] + X[i, 2] * n[2] - d)
-            q[0], q[1], q[2] = X[i, 0] - s * n[0], X[i, 1] - s * n[1], X[i, 2] - s * n[2]
-            if tpoints.shape[1]:
-                j = nearest_tree(tpoints, ids, nodes, split, 0, q, pair[i], stack, bound)
-            else:
-                j = nearest_brute(soa, centre, 0, q, dist, bits)
-            pair[i] = j
-            d2[i] = (X[j, 0] - q[0]) ** 2 + (X[j, 1] - q[1]) ** 2 + (X[j, 2] - q[2]) ** 2
+        run_parts(_reflect_and_pair, [(index, n, d, lo, hi, pair, d2) for lo, hi in parts])
 
     n = n0.copy()
-    d = X[:, 0].mean() * n0[0] + X[:, 1].mean() * n0[1] + X[:, 2].mean() * n0[2]
+    d = _centroid_offset(X, n0)
     for _ in range(iters):
         reflect_and_pair(n, d)
-        cut = np.quantile(np.sqrt(d2), trim)
-        S, mid, kept = np.zeros((3, 3)), np.zeros(3), 0
-        for i in range(npts):                                                 # the closest pairs a ↔ b
-            if np.sqrt(d2[i]) <= cut:
-                j = pair[i]
-                for a in range(3):
-                    mid[a] += 0.5 * (X[i, a] + X[j, a])
-                    for b in range(3):
-                        S[a, b] += (X[i, a] - X[j, a]) * (X[i, b] - X[j, b])
-                kept += 1
-        v = top_eigenvector(S)                                                # dominant pair direction
-        sign = v[0] * n[0] + v[1] * n[1] + v[2] * n[2]
-        cand = v * (-1.0 if sign < 0.0 else 1.0)                               # signed like n
-        if cand[0] * n0[0] + cand[1] * n0[1] + cand[2] * n0[2] < cos_max:
+        cand, d_new, cos0 = _plane_from_pairs(X, pair, d2, n, n0, trim)
+        if cos0 < cos_max:
             break
-        d_new = (mid[0] * cand[0] + mid[1] * cand[1] + mid[2] * cand[2]) / kept
         if d_new == d and np.all(cand == n):                                  # a fixed point: every further
             break                                                             # iteration repeats this one
         n, d = cand, d_new
@@ -125,14 +150,13 @@ def mirror_plane(points, normal, max_deg: float = MAX_DEG, iters: int = MIRROR_I
     Each iteration reflects the cloud, pairs every point with its nearest neighbour among the reflections' sources
     (the closest ``_MIRROR_TRIM`` of pairs), and takes the new normal as the dominant direction of the pair differences
     and the offset from their midpoints. Stops before a step that would leave ``max_deg`` of ``normal``, and at a
-    fixed point (a step that returns the plane it started from). One compiled loop (``equipose.core.nearest``).
+    fixed point (a step that returns the plane it started from). Compiled queries (``equipose.core.nearest``), in parts side by side.
     Returns (unit normal [3] signed like ``normal``, offset d with the plane n·x = d, mean squared reflection
     residual).
     """
     P = np.ascontiguousarray(points, np.float64)                             # [P, 3]
     n0 = np.asarray(normal, np.float64) / np.linalg.norm(normal)
-    n, d, residual = _mirror_iterations(build_index(P[None]), n0, float(np.cos(np.radians(max_deg))), int(iters),
-                                        float(_MIRROR_TRIM))
+    n, d, residual = _mirror_iterations(P, n0, float(np.cos(np.radians(max_deg))), int(iters), float(_MIRROR_TRIM))
     return n, float(d), float(residual)
 
 

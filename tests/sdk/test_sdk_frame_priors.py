@@ -155,3 +155,16 @@ def test_mirror_iterations_are_the_fit_s_iterations(rng):
     assert np.array_equal(R_default, R_full)
     n_one = mirror_plane(pts, tilt[:, 0], 45.0, iters=1)[0]
     assert np.allclose(R_one[:, 0], n_one, atol=1e-9)
+
+
+def test_mirror_plane_in_parts_equals_one_part(rng):
+    from equipose.core.parallel import kernel_workers
+    pts = _sofa(rng)
+    tilt = np.array([[np.cos(0.2), -np.sin(0.2), 0.0], [np.sin(0.2), np.cos(0.2), 0.0], [0.0, 0.0, 1.0]])
+    with kernel_workers(1):
+        n1, d1, r1 = mirror_plane(pts, tilt[:, 0], 45.0)
+    for parts in (2, 3):                                  # the reflect-and-pair pass split over threads
+        with kernel_workers(parts):
+            n, d, r = mirror_plane(pts, tilt[:, 0], 45.0)
+        assert np.array_equal(n, n1) and d == d1 and r == r1
+    assert not np.allclose(n1, tilt[:, 0], atol=1e-3)     # the fit moved: the iterations ran
