@@ -29,6 +29,7 @@ import numpy as np
 from equipose.core.errors import ConfigError, ModelFormatError
 from equipose.core.metadata import encode_metadata
 from equipose.core.neighbourhoods import input_name, nearest_neighbourhoods, neighbourhood_specs
+from equipose.export.graph_rewrite import rewrite_model
 from equipose.runtime.session import GRAPH_OUTPUTS as OUTPUT_NAMES, INPUT_NAME, SCORES, GraphIO
 
 __all__ = ["DEFAULT_OPSET", "OUTPUT_NAMES", "INPUT_NAME", "export_model", "export_random_model", "export_checkpoint",
@@ -190,6 +191,7 @@ def export_model(model, path, *, category: str, scale: float, symmetry: str = "n
     proto.doc_string = (f"equipose {cfg.name} model for category {category!r}: points [batch, {cfg.num_points}, 3] "
                         "(model units) -> canonical shape + 60 pose hypotheses")
     _drop_initializer_value_info(proto)
+    rewrite_model(proto)                                                   # exact rewrites (graph_rewrite)
     del proto.metadata_props[:]
     for k, v in meta.items():
         proto.metadata_props.add(key=k, value=v)

@@ -1,0 +1,91 @@
+"""Exact graph rewrites (``equipose.export.graph_rewrite``): what is dropped, what must stay, the numeric check."""
+import pathlib
+
+import numpy as np
+import pytest
+
+onnx = pytest.importorskip("onnx")
+ort = pytest.importorskip("onnxruntime")
+
+from onnx import TensorProto, helper, numpy_helper  # noqa: E402
+
+from equipose.errors import ModelFormatError  # noqa: E402
+from equipose.export import graph_rewrite  # noqa: E402
+from equipose.export.graph_rewrite import drop_normalised_biases, rewrite_model_file  # noqa: E402
+
+MODELS = pathlib.Path(__file__).resolve().parents[1] / "sdk" / "models"
+C = 4
+
+
+def _branch(g, tag, rng, *, extra_reader=False, act_first=False):
+    """x [2, 5, C] → MatMul → Add bias → (LeakyRelu) → Transpose → InstanceNormalization → out_<tag>."""
+    w, b = rng.normal(size=(C, C)).astype(np.float32), rng.normal(size=C).astype(np.float32)
+    s, o = rng.uniform(0.5, 1.5, C).astype(np.float32), rng.normal(size=C).astype(np.float32)
+    for name, v in ((f"w{tag}", w), (f"b{tag}", b), (f"s{tag}", s), (f"o{tag}", o)):
+        g["inits"].append(numpy_helper.from_array(v, name))
+    g["nodes"] += [helper.make_node("MatMul", ["x", f"w{tag}"], [f"m{tag}"]),
+                   helper.make_node("Add", [f"m{tag}", f"b{tag}"], [f"a{tag}"], name=f"add{tag}")]
+    src = f"a{tag}"
+    if act_first:
+        g["nodes"].append(helper.make_node("LeakyRelu", [src], [f"r{tag}"]))
+        src = f"r{tag}"
+    g["nodes"] += [helper.make_node("Transpose", [src], [f"t{tag}"], perm=[0, 2, 1]),
+                   helper.make_node("InstanceNormalization", [f"t{tag}", f"s{tag}", f"o{tag}"], [f"out{tag}"])]
+    g["outputs"].append(f"out{tag}")
+    if extra_reader:                                       # the biased value is also an output: the bias matters
+        g["outputs"].append(f"a{tag}")
+
+
+def _model(rng):
+    g = {"nodes": [], "inits": [], "outputs": []}
+    _branch(g, "0", rng)
+    _branch(g, "1", rng, extra_reader=True)
+    _branch(g, "2", rng, act_first=True)
+    graph = helper.make_graph(g["nodes"], "g", [helper.make_tensor_value_info("x", TensorProto.FLOAT, [2, 5, C])],
+                              [helper.make_tensor_value_info(n, TensorProto.FLOAT, [2, 5, C] if n[0] == "a" else [2, C, 5])
+                               for n in g["outputs"]],
+                              g["inits"])
+    return helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)])
+
+
+def _run(proto, x):
+    return ort.InferenceSession(proto.SerializeToString(), providers=["CPUExecutionProvider"]).run(None, {"x": x})
+
+
+def test_only_a_bias_the_normalisation_cancels_is_dropped():
+    rng = np.random.default_rng(0)
+    proto = _model(rng)
+    before = onnx.ModelProto()
+    before.CopyFrom(proto)
+    assert drop_normalised_biases(proto) == ["add0"]        # add1 has a second reader, add2 a LeakyRelu first
+    assert "b0" not in {t.name for t in proto.graph.initializer}
+    onnx.checker.check_model(proto)
+    x = rng.normal(size=(2, 5, C)).astype(np.float32)
+    for a, b in zip(_run(before, x), _run(proto, x)):
+        assert np.allclose(a, b, atol=1e-5)
+
+
+def test_the_file_check_refuses_a_rewrite_that_changes_outputs(tmp_path, monkeypatch):
+    src = tmp_path / "m.onnx"
+    src.write_bytes((MODELS / "cup-tabletop.onnx").read_bytes())
+
+    def drop_every_bias(proto):                             # a wrong rewrite: removes a bias that matters
+        inits = {t.name for t in proto.graph.initializer}
+        node = [n for n in proto.graph.node if n.op_type == "Add" and any(i in inits for i in n.input)][-1]  # a head's
+        for user in proto.graph.node:
+            for i, name in enumerate(user.input):
+                if name == node.output[0]:
+                    user.input[i] = node.input[0]
+        proto.graph.node.remove(node)
+        return {"wrong": [node.name]}
+
+    monkeypatch.setattr(graph_rewrite, "rewrite_model", drop_every_bias)
+    with pytest.raises(ModelFormatError, match="differ"):
+        rewrite_model_file(src, atol=1e-6)
+    assert src.read_bytes() == (MODELS / "cup-tabletop.onnx").read_bytes()    # left as it was
+
+
+@pytest.mark.parametrize("path", sorted(MODELS.glob("*.onnx")), ids=lambda p: p.name)
+def test_shipped_files_are_rewritten(path):
+    proto = onnx.load(str(path))
+    assert drop_normalised_biases(proto) == []
