@@ -70,9 +70,11 @@ def depth_to_metres(depth, depth_unit="mm", *, check_plausible: bool = True) -> 
         raise DepthDtypeError(f"depth dtype {depth.dtype} is not numeric; pass uint16 millimetres or float metres")
     scale = _unit_scale(depth_unit)
     d = np.multiply(depth, np.float32(scale), dtype=np.float32)                 # [H, W] metres
-    if not np.issubdtype(depth.dtype, np.unsignedinteger):                      # unsigned: finite, ≥ 0, 0 stays 0
+    if np.issubdtype(depth.dtype, np.unsignedinteger):                          # finite, ≥ 0, 0 stays 0
+        n_valid = int(np.count_nonzero(depth))                                  # (counting the integers is faster)
+    else:
         d[~(np.isfinite(d) & (d > 0))] = 0.0                                    # [H, W] invalid → 0
-    n_valid = int(np.count_nonzero(d))
+        n_valid = int(np.count_nonzero(d))
     if n_valid == 0:
         raise EmptyDepthError(f"depth frame {depth.shape} has no valid pixel (all 0, negative, NaN or Inf); "
                               "check that the camera delivers depth and the scene is within its range")
