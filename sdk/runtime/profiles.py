@@ -23,18 +23,19 @@ FAST = {"copies": False, "rescore": False, "view": False, "polish": False, "rest
 PROFILES: dict = {
     "accurate": {"*": {}},
     "default": {"*": {},                             # per model: settings measured within noise of accurate
-                "airplane-complete": {"flip": {"templates": 4}},                  # (docs/benchmarks.md, v0.24, v0.28)
-                "airplane-partial": {"flip": {"template_points": 128}, "turn": {"points": 128},
+                # (docs/benchmarks.md, v0.24, v0.28, v0.29: full test sets, fp32 and int8)
+                "airplane-complete": {"flip": {"templates": 4}, "rescore": {"k": 4}},
+                "airplane-partial": {"flip": {"template_points": 128, "templates": 2}, "turn": {"points": 128},
                                      "rescore": {"iters": 15}},
-                "car-complete": {"upright": {"points": 128}, "rescore": {"iters": 15},
-                                 "frame_priors": {"mirror_iters": 8, "points": 1024}},
-                "chair-complete": {"frame_priors": {"points": 1024}},
-                "sofa-complete": {"rescore": {"iters": 15}, "frame_priors": {"points": 1024}},
-                "bottle-complete": {"rescore": {"iters": 15}},
-                "bottle-partial": {"rescore": {"iters": 15}},
+                "car-complete": {"upright": {"points": 64}, "rescore": {"iters": 10, "k": 4},
+                                 "frame_priors": {"mirror_iters": 5, "points": 1024}},
+                "chair-complete": {"frame_priors": {"points": 1024}, "rescore": {"k": 4}},
+                "sofa-complete": {"rescore": {"iters": 15, "k": 4}, "frame_priors": {"points": 1024}},
+                "bottle-complete": {"rescore": {"iters": 15, "k": 4}},
+                "bottle-partial": {"rescore": {"iters": 15, "k": 4}},
                 "car-partial": {"polish": {"points": 2048}},
-                "sofa-partial": {"polish": {"points": 1024}},
-                "chair-partial": {"rescore": {"iters": 15}, "polish": {"iters": 15, "points": 2048}}},
+                "sofa-partial": {"polish": {"points": 1024}, "rescore": {"points": 128}},
+                "chair-partial": {"rescore": {"iters": 15}, "polish": {"iters": 10, "points": 2048}}},
     "fast": {"*": FAST},
 }
 
