@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import collections
 import json
+import os
 import pathlib
 
 import numpy as np
@@ -52,9 +53,11 @@ def _normalisation_reached(add, users, outputs):
     return None
 
 
-def drop_normalised_biases(proto) -> list:
+def drop_normalised_biases(proto) -> dict:
     """Remove each Add of a constant 1-D bias whose result goes, through Reshape/Transpose only, into an
-    InstanceNormalization whose scale has as many channels as the bias; return the removed nodes' names.
+    InstanceNormalization whose scale has as many channels as the bias. Returns {bias initializer name: the
+    initializer of the MatMul whose result the bias was added to ("" when none)}; ``rewrite_model`` keeps it in the
+    metadata entry ``dropped_biases``, so ``checkpoint_from_onnx`` can still find each layer's weight.
 
     The normalisation subtracts each channel's mean, so a per-channel constant added before it changes no output.
     The channel match is checked on the sizes; ``rewrite_model_file`` also checks the outputs numerically."""
@@ -63,7 +66,8 @@ def drop_normalised_biases(proto) -> list:
     inits = {t.name: t for t in graph.initializer}
     users = _consumers(graph)
     outputs = {o.name for o in graph.output}
-    removed = []
+    producers = {o: n for n in graph.node for o in n.output}
+    removed = {}
     for node in list(graph.node):
         if node.op_type != "Add" or len(node.input) != 2:
             continue
@@ -80,7 +84,9 @@ def drop_normalised_biases(proto) -> list:
                 if name == node.output[0]:
                     user.input[i] = data
         graph.node.remove(node)
-        removed.append(node.name)
+        mm = producers.get(data)                                             # x @ W: W a 2-D initializer
+        w = mm.input[1] if mm is not None and mm.op_type == "MatMul" else ""
+        removed[bias_name] = w if w in inits and len(inits[w].dims) == 2 else ""
     used = {name for n in graph.node for name in n.input}
     for t in [t for t in graph.initializer if t.name not in used]:
         graph.initializer.remove(t)
@@ -88,8 +94,15 @@ def drop_normalised_biases(proto) -> list:
 
 
 def rewrite_model(proto) -> dict:
-    """Every rewrite of this module on ``proto`` (in place); returns {rewrite: [node names removed]}."""
-    return {"drop_normalised_biases": drop_normalised_biases(proto)}
+    """Every rewrite of this module on ``proto`` (in place, metadata entry ``dropped_biases`` merged); returns
+    {rewrite: what it removed}."""
+    dropped = drop_normalised_biases(proto)
+    if dropped:
+        entry = next((p for p in proto.metadata_props if p.key == "dropped_biases"), None)
+        if entry is None:
+            entry = proto.metadata_props.add(key="dropped_biases", value="{}")
+        entry.value = json.dumps({**json.loads(entry.value), **dropped}, sort_keys=True)
+    return {"drop_normalised_biases": dropped}
 
 
 def _random_feeds(proto, batch: int, seed: int) -> dict:
@@ -125,7 +138,6 @@ def rewrite_model_file(path, out=None, atol: float | None = None) -> dict:
     within ``atol`` (default ``FP32_ATOL``, ``INT8_ATOL`` for an int8 file), else ``ModelFormatError`` and nothing is
     written. Returns {"removed": {rewrite: [names]}, "max_abs_diff": float}."""
     import onnx
-    from equipose.export.onnx_export import _write_atomic
     path = pathlib.Path(path)
     out = path if out is None else pathlib.Path(out)
     try:
@@ -143,7 +155,9 @@ def rewrite_model_file(path, out=None, atol: float | None = None) -> dict:
                                "the original's; the file was left as it was")
     onnx.checker.check_model(rewritten, full_check=True)
     out.parent.mkdir(parents=True, exist_ok=True)
-    _write_atomic(rewritten, out)
+    tmp = out.with_name(out.name + ".tmp")                                 # atomic: a reader never sees half a file
+    onnx.save_model(rewritten, str(tmp))
+    os.replace(tmp, out)
     return {"removed": removed, "max_abs_diff": diff}
 
 

@@ -191,10 +191,10 @@ def export_model(model, path, *, category: str, scale: float, symmetry: str = "n
     proto.doc_string = (f"equipose {cfg.name} model for category {category!r}: points [batch, {cfg.num_points}, 3] "
                         "(model units) -> canonical shape + 60 pose hypotheses")
     _drop_initializer_value_info(proto)
-    rewrite_model(proto)                                                   # exact rewrites (graph_rewrite)
     del proto.metadata_props[:]
     for k, v in meta.items():
         proto.metadata_props.add(key=k, value=v)
+    rewrite_model(proto)                                                   # exact rewrites (graph_rewrite)
     onnx.checker.check_model(proto, full_check=True)
     _write_atomic(proto, path)
     if verify:

@@ -1,4 +1,5 @@
 """Exact graph rewrites (``equipose.export.graph_rewrite``): what is dropped, what must stay, the numeric check."""
+import json
 import pathlib
 
 import numpy as np
@@ -42,7 +43,8 @@ def _model(rng):
     _branch(g, "1", rng, extra_reader=True)
     _branch(g, "2", rng, act_first=True)
     graph = helper.make_graph(g["nodes"], "g", [helper.make_tensor_value_info("x", TensorProto.FLOAT, [2, 5, C])],
-                              [helper.make_tensor_value_info(n, TensorProto.FLOAT, [2, 5, C] if n[0] == "a" else [2, C, 5])
+                              [helper.make_tensor_value_info(n, TensorProto.FLOAT,
+                                                             [2, 5, C] if n[0] == "a" else [2, C, 5])
                                for n in g["outputs"]],
                               g["inits"])
     return helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)])
@@ -57,7 +59,7 @@ def test_only_a_bias_the_normalisation_cancels_is_dropped():
     proto = _model(rng)
     before = onnx.ModelProto()
     before.CopyFrom(proto)
-    assert drop_normalised_biases(proto) == ["add0"]        # add1 has a second reader, add2 a LeakyRelu first
+    assert drop_normalised_biases(proto) == {"b0": "w0"}    # add1 has a second reader, add2 a LeakyRelu first
     assert "b0" not in {t.name for t in proto.graph.initializer}
     onnx.checker.check_model(proto)
     x = rng.normal(size=(2, 5, C)).astype(np.float32)
@@ -88,4 +90,5 @@ def test_the_file_check_refuses_a_rewrite_that_changes_outputs(tmp_path, monkeyp
 @pytest.mark.parametrize("path", sorted(MODELS.glob("*.onnx")), ids=lambda p: p.name)
 def test_shipped_files_are_rewritten(path):
     proto = onnx.load(str(path))
-    assert drop_normalised_biases(proto) == []
+    assert drop_normalised_biases(proto) == {}
+    assert json.loads({p.key: p.value for p in proto.metadata_props}["dropped_biases"])   # the layers' weights named

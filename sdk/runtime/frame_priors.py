@@ -150,7 +150,8 @@ def mirror_plane(points, normal, max_deg: float = MAX_DEG, iters: int = MIRROR_I
     Each iteration reflects the cloud, pairs every point with its nearest neighbour among the reflections' sources
     (the closest ``_MIRROR_TRIM`` of pairs), and takes the new normal as the dominant direction of the pair differences
     and the offset from their midpoints. Stops before a step that would leave ``max_deg`` of ``normal``, and at a
-    fixed point (a step that returns the plane it started from). Compiled queries (``equipose.core.nearest``), in parts side by side.
+    fixed point (a step that returns the plane it started from). Compiled queries (``equipose.core.nearest``), in
+    parts side by side.
     Returns (unit normal [3] signed like ``normal``, offset d with the plane n·x = d, mean squared reflection
     residual).
     """

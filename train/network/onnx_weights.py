@@ -7,6 +7,9 @@ fused product). Recovery:
 
 * named initializers are copied; a missing ``Linear`` weight is the single unnamed initializer of its transposed
   shape that feeds a MatMul whose result is added to that layer's (named) bias;
+* a bias that an InstanceNormalization cancels is not in the graph (``equipose.export.graph_rewrite``): the metadata
+  entry ``dropped_biases`` names it and its layer's MatMul weight; it comes back as zeros (any value gives the same
+  outputs);
 * each fused BatchNorm gets running statistics measured on ``calib_points`` (the fused layer's own pre-activation
   mean / variance) and the affine pair that undoes them exactly (γ = √(var + ε), β = mean), so the network in eval
   mode is the exported function to float rounding and in training mode starts from the same batch statistics.
@@ -39,8 +42,12 @@ def _initializers(proto) -> dict:
     return {t.name: numpy_helper.to_array(t) for t in proto.graph.initializer}
 
 
-def _transposed_weight(proto, inits: dict, bias_name: str, shape: tuple) -> np.ndarray:
-    """The [out, in] weight of the Linear whose MatMul output is added to ``bias_name`` (stored as [in, out])."""
+def _transposed_weight(proto, inits: dict, bias_name: str, shape: tuple, dropped: dict) -> np.ndarray:
+    """The [out, in] weight of the Linear whose MatMul output is added to ``bias_name`` (stored as [in, out]);
+    for a bias the graph rewrite dropped (``dropped``: the ``dropped_biases`` metadata), the MatMul it names."""
+    w = inits.get(dropped.get(bias_name, ""))
+    if w is not None and tuple(w.shape) == (shape[1], shape[0]):
+        return w.T.copy()
     producers = {o: n for n in proto.graph.node for o in n.output}
     for node in proto.graph.node:
         if node.op_type != "Add" or bias_name not in node.input:
@@ -94,6 +101,7 @@ def checkpoint_from_onnx(path, calib_points: np.ndarray | None = None, *, seed: 
     fused_bn = {id(bn) for _, bn in fused}
     bn_names = {name for name, mod in model.named_modules() if id(mod) in fused_bn}
     state = model.state_dict()
+    dropped = json.loads(meta.get("dropped_biases", "{}"))                # biases an InstanceNorm cancels
     for key, ref in state.items():
         owner = key.rsplit(".", 1)[0]
         if owner in bn_names:                                     # filled from measured statistics below
@@ -101,7 +109,9 @@ def checkpoint_from_onnx(path, calib_points: np.ndarray | None = None, *, seed: 
         if _PREFIX + key in inits:
             value = inits[_PREFIX + key]
         elif key.endswith(".weight") and ref.dim() == 2:
-            value = _transposed_weight(proto, inits, _PREFIX + owner + ".bias", tuple(ref.shape))
+            value = _transposed_weight(proto, inits, _PREFIX + owner + ".bias", tuple(ref.shape), dropped)
+        elif _PREFIX + key in dropped:                              # no effect on any output: any value will do
+            value = np.zeros(tuple(ref.shape), np.float32)
         elif key.endswith("num_batches_tracked"):
             continue
         else:
