@@ -14,12 +14,12 @@ from __future__ import annotations
 
 import collections
 import json
-import os
 import pathlib
 
 import numpy as np
 
 from equipose.core.errors import ModelFormatError
+from equipose.export.model_io import read_model_file, write_model_file
 
 __all__ = ["drop_normalised_biases", "rewrite_model", "rewrite_model_file", "max_output_difference"]
 
@@ -140,10 +140,7 @@ def rewrite_model_file(path, out=None, atol: float | None = None) -> dict:
     import onnx
     path = pathlib.Path(path)
     out = path if out is None else pathlib.Path(out)
-    try:
-        original = onnx.load(str(path))
-    except Exception as e:                                                 # protobuf decode errors, missing file
-        raise ModelFormatError(f"{path} is not a readable ONNX model: {e}") from None
+    original = read_model_file(path)
     rewritten = onnx.ModelProto()
     rewritten.CopyFrom(original)
     removed = rewrite_model(rewritten)
@@ -154,10 +151,7 @@ def rewrite_model_file(path, out=None, atol: float | None = None) -> dict:
         raise ModelFormatError(f"{path.name}: the rewritten graph's outputs differ by {diff:.3g} (> {limit:g}) from "
                                "the original's; the file was left as it was")
     onnx.checker.check_model(rewritten, full_check=True)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.with_name(out.name + ".tmp")                                 # atomic: a reader never sees half a file
-    onnx.save_model(rewritten, str(tmp))
-    os.replace(tmp, out)
+    write_model_file(rewritten, out)
     return {"removed": removed, "max_abs_diff": diff}
 
 

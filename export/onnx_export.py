@@ -19,7 +19,6 @@ from __future__ import annotations
 import contextlib
 import io
 import logging
-import os
 import pathlib
 import sys
 import warnings
@@ -30,6 +29,7 @@ from equipose.core.errors import ConfigError, ModelFormatError
 from equipose.core.metadata import encode_metadata
 from equipose.core.neighbourhoods import input_name, nearest_neighbourhoods, neighbourhood_specs
 from equipose.export.graph_rewrite import rewrite_model
+from equipose.export.model_io import read_model_file, write_model_file
 from equipose.runtime.session import GRAPH_OUTPUTS as OUTPUT_NAMES, INPUT_NAME, SCORES, GraphIO
 
 __all__ = ["DEFAULT_OPSET", "OUTPUT_NAMES", "INPUT_NAME", "export_model", "export_random_model", "export_checkpoint",
@@ -113,14 +113,6 @@ def _drop_initializer_value_info(proto):
     proto.graph.value_info.extend(keep)
 
 
-def _write_atomic(model_proto, path: pathlib.Path):
-    import onnx
-
-    tmp = path.with_name(path.name + ".tmp")
-    onnx.save_model(model_proto, str(tmp))              # weights inline: one file (< 2 GB protobuf limit)
-    os.replace(tmp, path)
-
-
 def export_model(model, path, *, category: str, scale: float, symmetry: str = "none", calibration=None, handle=None,
                  shape_prior: str | None = None,
                  random_init: bool = False, training: dict | None = None, metrics: dict | None = None,
@@ -196,7 +188,7 @@ def export_model(model, path, *, category: str, scale: float, symmetry: str = "n
         proto.metadata_props.add(key=k, value=v)
     rewrite_model(proto)                                                   # exact rewrites (graph_rewrite)
     onnx.checker.check_model(proto, full_check=True)
-    _write_atomic(proto, path)
+    write_model_file(proto, path)
     if verify:
         _verify_parity(wrapper, path, example, neighbour_inputs)
     return path
@@ -334,10 +326,7 @@ def upgrade_model_file(path, out=None) -> pathlib.Path:
 
     path = pathlib.Path(path)
     out = path if out is None else pathlib.Path(out)
-    try:
-        proto = onnx.load(str(path))
-    except Exception as e:                                                 # protobuf decode errors, missing file
-        raise ModelFormatError(f"{path} is not a readable ONNX model: {e}") from None
+    proto = read_model_file(path)
     meta = {p.key: p.value for p in proto.metadata_props}
     outputs = [o.name for o in proto.graph.output]
     if not set(OUTPUT_NAMES) <= set(outputs) or "model_config" not in meta:
@@ -363,8 +352,7 @@ def upgrade_model_file(path, out=None) -> pathlib.Path:
             sub.metadata_props.add(key=k, value=v)
         onnx.checker.check_model(sub, full_check=True)
         proto = sub
-    out.parent.mkdir(parents=True, exist_ok=True)
-    _write_atomic(proto, out)
+    write_model_file(proto, out)
     return out
 
 
@@ -372,17 +360,11 @@ def update_metadata(path, **values) -> pathlib.Path:
     """Rewrite metadata entries of an exported model in place (dicts are stored as JSON), e.g. ``metrics=`` after an
     evaluation of that very file. The result is re-validated with ``equipose.core.metadata.decode_metadata``."""
     import json
-    import os
-
-    import onnx
 
     from equipose.core.metadata import decode_metadata
 
     path = pathlib.Path(path)
-    try:
-        proto = onnx.load(str(path))
-    except Exception as e:                                                 # protobuf decode errors, missing file
-        raise ModelFormatError(f"{path} is not a readable ONNX model: {e}") from None
+    proto = read_model_file(path)
     meta = {p.key: p.value for p in proto.metadata_props}
     for k, v in values.items():
         meta[k] = json.dumps(v) if isinstance(v, (dict, list)) else str(v)
@@ -390,7 +372,4 @@ def update_metadata(path, **values) -> pathlib.Path:
     del proto.metadata_props[:]
     for k, v in meta.items():
         proto.metadata_props.add(key=k, value=v)
-    tmp = path.with_name(path.name + ".tmp")
-    onnx.save_model(proto, str(tmp))
-    os.replace(tmp, path)
-    return path
+    return write_model_file(proto, path)
