@@ -3,9 +3,8 @@
 ``drop_normalised_biases``: a layer's bias that an InstanceNormalization cancels. Every convolution of the backbone
 adds a per-channel bias and then normalises each channel over its points and rotations (``layers.SeparableSO3Block``):
 the normalisation subtracts the channel's mean, bias included, so the bias has no effect on any output. In the graph
-it costs one broadcast Add per convolution (11 in ``edge-q``), the slowest kind of elementwise op in onnxruntime's
-CPU provider (a 16–64-float inner loop per call). Dropping them left the outputs of the airplane-partial graph within
-1.6e-6 and made one run 6 % faster (4.20 → 3.94 ms, batch 1, one thread, alternating sessions).
+it costs one broadcast Add per convolution (11 in ``edge-q``) over a 16–64-float inner dimension, a slow case of
+onnxruntime's CPU kernels. What dropping them changes and saves: docs/benchmarks.md, v0.29.
 
 Convention: functions take and return ``onnx.ModelProto`` (changed in place); ``rewrite_model_file`` checks the
 rewritten file against the original on random inputs in onnxruntime and keeps every metadata entry.
@@ -136,7 +135,7 @@ def rewrite_model_file(path, out=None, atol: float | None = None) -> dict:
 
     Checks the rewritten graph against the original on random inputs: the largest output difference must stay
     within ``atol`` (default ``FP32_ATOL``, ``INT8_ATOL`` for an int8 file), else ``ModelFormatError`` and nothing is
-    written. Returns {"removed": {rewrite: [names]}, "max_abs_diff": float}."""
+    written. Returns {"removed": {rewrite: what it removed}, "max_abs_diff": float}."""
     import onnx
     path = pathlib.Path(path)
     out = path if out is None else pathlib.Path(out)
