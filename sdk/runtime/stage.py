@@ -25,7 +25,7 @@ import numpy as np
 from equipose.core.errors import ConfigError
 
 __all__ = ["Stage", "ObjectState", "register_stage", "unregister_stage", "registered_stages", "stage_metadata_keys",
-           "STAGE_ORDER", "cloud_points_option", "MIN_FIT_POINTS"]
+           "STAGE_ORDER", "cloud_points_option", "int_option", "MIN_FIT_POINTS"]
 
 STAGE_ORDER: list = []          # stage names in run order (registration inserts each after its ``after``)
 _REGISTRY: dict = {}
@@ -90,6 +90,15 @@ def stage_metadata_keys() -> tuple:
 
 
 MIN_FIT_POINTS = 16            # the fewest points an ``int`` cloud-points option may ask for
+
+
+def int_option(name: str, value, low: int, high: int | None, meaning: str) -> int:
+    """Check a stage's integer option (``meaning`` says what it counts for the error). Raises ``ConfigError``."""
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < low or \
+            (high is not None and value > high):
+        rng = f"{low}..{high}" if high is not None else f"≥ {low}"
+        raise ConfigError(f"{name} must be 'auto' or an int in {rng} ({meaning}), got {value!r}")
+    return int(value)
 
 
 def cloud_points_option(stage: str, value) -> str | int:

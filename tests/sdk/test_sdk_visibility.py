@@ -126,3 +126,25 @@ def test_visibility_is_refused_for_complete_shape_models(tmp_path):
     with pytest.raises(ConfigError, match="partial-view"):
         PoseEstimator(path, threads=1, refine=3, visibility=1.0)
     assert PoseEstimator(path, threads=1, refine=3).visibility is None
+
+
+def test_view_stage_ranks_its_k_best(tiny_model, monkeypatch):
+    """stage option view k: how many of the best re-scored poses the view-aware residual ranks ("auto": all)."""
+    from equipose import PoseEstimator
+    import equipose.runtime.stages.view as view_stage
+    seen = []
+
+    def spy(*args, k, **kwargs):
+        seen.append(k)
+        return view_rescore(*args, k=k, **kwargs)
+    monkeypatch.setattr(view_stage, "view_rescore", spy)
+    pts = np.random.default_rng(1).normal(scale=0.05, size=(400, 3)) + [0.0, 0.0, 0.8]
+    auto = PoseEstimator(tiny_model, threads=1, refine=4, visibility=1.0)
+    two = PoseEstimator(tiny_model, threads=1, refine=4, visibility=1.0, stages={"view": {"k": 2}})
+    assert auto.pipeline.get("view").describe()["k"] == 4 and two.pipeline.get("view").describe()["k"] == 2
+    auto.predict_points(pts)
+    two.predict_points(pts)
+    assert seen == [4, 2]
+    for bad in (0, 2.5, True, "all"):
+        with pytest.raises(ConfigError, match="view k"):
+            PoseEstimator(tiny_model, threads=1, refine=4, visibility=1.0, stages={"view": {"k": bad}})

@@ -16,18 +16,10 @@ from equipose.core.icp import icp_multi
 from equipose.core.metadata import MAX_DENSIFY
 from equipose.core.errors import ConfigError
 from equipose.runtime.refine import rank_refined
-from equipose.runtime.stage import ObjectState, Stage, register_stage
+from equipose.runtime.stage import ObjectState, Stage, int_option, register_stage
 from equipose.runtime.template import densify_template
 
 __all__ = ["RescoreStage"]
-
-
-def _int_option(name: str, value, low: int, high: int | None, meaning: str) -> int:
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < low or \
-            (high is not None and value > high):
-        rng = f"{low}..{high}" if high is not None else f"≥ {low}"
-        raise ConfigError(f"{name} must be 'auto' or an int in {rng} ({meaning}), got {value!r}")
-    return int(value)
 
 
 @register_stage
@@ -44,22 +36,22 @@ class RescoreStage(Stage):
     def build(cls, spec, options, context):
         rcal = spec.refine_calibration or {}
         k = options["k"]
-        k = rcal.get("k", 0) if isinstance(k, str) and k == "auto" else _int_option(
+        k = rcal.get("k", 0) if isinstance(k, str) and k == "auto" else int_option(
             "refine", k, 0, None, "hypotheses re-scored by ICP")
         iters = options["iters"]
-        iters = rcal.get("iters", 10) if iters in ("auto", None) else _int_option(
+        iters = rcal.get("iters", 10) if iters in ("auto", None) else int_option(
             "refine_iters", iters, 1, None, "ICP iterations per re-scored hypothesis")
         densify = options["densify"]
         if isinstance(densify, str) and densify == "auto":
             densify = rcal.get("densify", 0) if k else 0
         else:
-            densify = _int_option("densify", densify, 0, MAX_DENSIFY, "neighbours per template point whose midpoints "
+            densify = int_option("densify", densify, 0, MAX_DENSIFY, "neighbours per template point whose midpoints "
                                   "join the ICP template")
             if densify and not k:
                 raise ConfigError("densify is part of the ICP re-scoring: it needs refine > 0 (or leave "
                                   "densify='auto')")
         points = options["points"]
-        points = None if points == "all" else _int_option("rescore points", points, 16, None,
+        points = None if points == "all" else int_option("rescore points", points, 16, None,
                                                           "observation points fitted, or 'all'")
         return cls(k, iters, densify, not spec.partial, points) if k else None
 

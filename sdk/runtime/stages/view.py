@@ -2,14 +2,15 @@
 also charged for template parts the camera would see but the view lacks; the copies' vote weighs in.
 
 Options: ``exponent`` of the hidden-point removal ("auto": the file's ``refine_calibration`` visibility when its
-re-scoring runs; None = off). Runs only after stage ``rescore`` ran on the object.
+re-scoring runs; None = off); ``k`` the best re-scored poses it ranks ("auto": all of them, the re-scoring's ``k``
+plus the copies' consensus). Runs only after stage ``rescore`` ran on the object.
 
 Convention: model units, learned frame, centred camera frame (the camera at ``−centre_m / scale``).
 """
 from __future__ import annotations
 
 from equipose.core.errors import ConfigError
-from equipose.runtime.stage import ObjectState, Stage, register_stage
+from equipose.runtime.stage import ObjectState, Stage, int_option, register_stage
 from equipose.runtime.visibility import VIEW_AMBIGUOUS_MARGIN, view_rescore
 
 __all__ = ["ViewStage"]
@@ -19,7 +20,7 @@ __all__ = ["ViewStage"]
 class ViewStage(Stage):
     name = "view"
     after = "consensus"
-    options = {"exponent": "auto"}
+    options = {"exponent": "auto", "k": "auto"}
 
     def __init__(self, exponent: float, k: int):
         self.exponent, self.k = float(exponent), int(k)
@@ -39,10 +40,13 @@ class ViewStage(Stage):
                                   "a complete-shape model: leave visibility='auto' or None")
         if e is None or rescore is None:
             return None
-        return cls(e, rescore.k + ("copies" in context["built"]))
+        k = rescore.k + ("copies" in context["built"])
+        if options["k"] != "auto":
+            k = int_option("view k", options["k"], 1, None, "best re-scored poses ranked by the view-aware residual")
+        return cls(e, k)
 
     def describe(self) -> dict:
-        return {"exponent": self.exponent}
+        return {"exponent": self.exponent, "k": self.k}
 
     def run(self, state: ObjectState) -> None:
         if not state.rescored:
