@@ -46,13 +46,13 @@ class RescoreStage(Stage):
             densify = rcal.get("densify", 0) if k else 0
         else:
             densify = int_option("densify", densify, 0, MAX_DENSIFY, "neighbours per template point whose midpoints "
-                                  "join the ICP template")
+                                 "join the ICP template")
             if densify and not k:
                 raise ConfigError("densify is part of the ICP re-scoring: it needs refine > 0 (or leave "
                                   "densify='auto')")
         points = options["points"]
         points = None if points == "all" else int_option("rescore points", points, 16, None,
-                                                          "observation points fitted, or 'all'")
+                                                         "observation points fitted, or 'all'")
         return cls(k, iters, densify, not spec.partial, points) if k else None
 
     def describe(self) -> dict:
