@@ -104,29 +104,22 @@ def rewrite_model(proto) -> dict:
     return {"drop_normalised_biases": dropped}
 
 
-def _random_feeds(proto, batch: int, seed: int) -> dict:
-    """Inputs for a format-2 equipose graph: random points (model units) and their true neighbourhoods."""
-    from equipose.core.neighbourhoods import neighbourhood_specs, neighbourhoods
-    from equipose.core.presets import ModelConfig
-    meta = {p.key: p.value for p in proto.metadata_props}
-    if "model_config" not in meta:
-        raise ModelFormatError("the graph has no equipose metadata (model_config); not an equipose model")
-    cfg = ModelConfig.from_dict(json.loads(meta["model_config"]))
-    x = (np.random.default_rng(seed).normal(size=(batch, cfg.num_points, 3)) * 0.3).astype(np.float32)
-    names = {i.name for i in proto.graph.input}
-    feeds = {"points": x, **neighbourhoods(x, neighbourhood_specs(cfg.layers))}
-    return {k: v for k, v in feeds.items() if k in names}
-
-
 def max_output_difference(before, after, batch: int = 2, seed: int = 0) -> float:
-    """Largest absolute difference between the outputs of two graphs (``ModelProto``) on the same random input."""
+    """Largest absolute difference between the outputs of two graphs (``ModelProto``) of one equipose model on the
+    same random input (points in model units and their neighbourhoods, as the runtime feeds them)."""
     import onnxruntime as ort
+    from equipose.runtime.session import GraphIO
+    meta = {p.key: p.value for p in before.metadata_props}
+    if "model_config" not in meta or "num_points" not in meta:
+        raise ModelFormatError("the graph has no equipose metadata (model_config, num_points); not an equipose model")
     so = ort.SessionOptions()
     so.intra_op_num_threads = 1
     so.log_severity_level = 3
-    feeds = _random_feeds(before, batch, seed)
-    outs = [ort.InferenceSession(p.SerializeToString(), so, providers=["CPUExecutionProvider"]).run(None, feeds)
-            for p in (before, after)]
+    sessions = [ort.InferenceSession(p.SerializeToString(), so, providers=["CPUExecutionProvider"])
+                for p in (before, after)]
+    x = (np.random.default_rng(seed).normal(size=(batch, int(meta["num_points"]), 3)) * 0.3).astype(np.float32)
+    feeds = GraphIO(sessions[0], meta).feeds(x)                                 # points + neighbourhoods
+    outs = [s.run(None, feeds) for s in sessions]
     return max(float(np.max(np.abs(a - b))) for a, b in zip(*outs))
 
 
@@ -144,7 +137,7 @@ def rewrite_model_file(path, out=None, atol: float | None = None) -> dict:
     rewritten.CopyFrom(original)
     removed = rewrite_model(rewritten)
     diff = max_output_difference(original, rewritten) if any(removed.values()) else 0.0
-    int8 = any(n.op_type in ("MatMulInteger", "DynamicQuantizeLinear") for n in original.graph.node)
+    int8 = {p.key: p.value for p in original.metadata_props}.get("precision") == "int8"
     limit = (INT8_ATOL if int8 else FP32_ATOL) if atol is None else float(atol)
     if not diff <= limit:
         raise ModelFormatError(f"{path.name}: the rewritten graph's outputs differ by {diff:.3g} (> {limit:g}) from "

@@ -35,7 +35,7 @@ def check_intrinsics(K, depth_shape, image_size=None) -> np.ndarray:
                               + (" (pass np.array(K).reshape(3, 3) for a flat list of 9)" if K.size == 9 else ""))
     if not np.all(np.isfinite(K)):
         raise IntrinsicsError("K contains NaN or Inf")
-    last_row = abs(K[2, 0]) <= 1e-8 and abs(K[2, 1]) <= 1e-8 and abs(K[2, 2] - 1.0) <= 1e-5   # ≈ (0, 0, 1)
+    last_row = abs(K[2, 0]) <= 1e-8 and abs(K[2, 1]) <= 1e-8 and abs(K[2, 2] - 1.0) <= 1e-8 + 1e-5   # allclose
     if not (K[0, 0] > 0 and K[1, 1] > 0) or not last_row or K[1, 0] != 0:
         raise IntrinsicsError(f"K is not a pinhole matrix (need fx, fy > 0 and last row 0 0 1): {K.tolist()}")
     H, W = int(depth_shape[0]), int(depth_shape[1])
