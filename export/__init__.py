@@ -8,4 +8,4 @@ imported only when an export runs.
 from equipose.export.onnx_export import (DEFAULT_OPSET, INPUT_NAME, OUTPUT_NAMES, export_checkpoint,  # noqa: F401
                                          export_model, export_random_model, op_type_counts, update_metadata,
                                          upgrade_model_file)
-from equipose.export.quantize import int8_path_for, quantize_int8  # noqa: F401
+from equipose.models.int8 import int8_path_for, quantize_int8  # noqa: F401

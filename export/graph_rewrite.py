@@ -18,7 +18,7 @@ import pathlib
 import numpy as np
 
 from equipose.core.errors import ModelFormatError
-from equipose.export.model_io import read_model_file, write_model_file
+from equipose.models.model_io import read_model_file, write_model_file
 
 __all__ = ["drop_normalised_biases", "rewrite_model", "rewrite_model_file", "max_output_difference"]
 

@@ -29,7 +29,7 @@ from equipose.core.errors import ConfigError, ModelFormatError
 from equipose.core.metadata import encode_metadata
 from equipose.core.neighbourhoods import input_name, nearest_neighbourhoods, neighbourhood_specs
 from equipose.export.graph_rewrite import rewrite_model
-from equipose.export.model_io import read_model_file, write_model_file
+from equipose.models.model_io import read_model_file, write_model_file
 from equipose.runtime.session import GRAPH_OUTPUTS as OUTPUT_NAMES, INPUT_NAME, SCORES, GraphIO
 
 __all__ = ["DEFAULT_OPSET", "OUTPUT_NAMES", "INPUT_NAME", "export_model", "export_random_model", "export_checkpoint",
@@ -358,18 +358,36 @@ def upgrade_model_file(path, out=None) -> pathlib.Path:
 
 def update_metadata(path, **values) -> pathlib.Path:
     """Rewrite metadata entries of an exported model in place (dicts are stored as JSON), e.g. ``metrics=`` after an
-    evaluation of that very file. The result is re-validated with ``equipose.core.metadata.decode_metadata``."""
+    evaluation of that very file. The result is re-validated with ``equipose.core.metadata.decode_metadata``.
+
+    On an int8 copy built from the fp32 file beside it (``equipose.models.int8``) an entry that differs from the fp32
+    file's is recorded in that file's ``int8_overrides`` (one equal to it clears the override, so the copy follows
+    the fp32 file again) and the copy is rebuilt, so that a later rebuild keeps them."""
     import json
 
     from equipose.core.metadata import decode_metadata
+    from equipose.models.int8 import OVERRIDES_KEY, ensure_int8, fp32_path_for, is_derived_int8, quantize_int8
 
     path = pathlib.Path(path)
-    proto = read_model_file(path)
+    if fp32_path_for(path) is not None and fp32_path_for(path).is_file():
+        ensure_int8(fp32_path_for(path))                                    # an int8 copy not built yet, or stale
+    encoded = {k: json.dumps(v) if isinstance(v, (dict, list)) else str(v) for k, v in values.items()}
+    target = fp32_path_for(path) if is_derived_int8(path) else path
+    proto = read_model_file(target)
     meta = {p.key: p.value for p in proto.metadata_props}
-    for k, v in values.items():
-        meta[k] = json.dumps(v) if isinstance(v, (dict, list)) else str(v)
-    decode_metadata(meta, source=str(path))
+    if target != path:
+        overrides = json.loads(meta.get(OVERRIDES_KEY) or "{}")
+        for k, v in encoded.items():
+            if meta.get(k) == v:
+                overrides.pop(k, None)
+            else:
+                overrides[k] = v
+        decode_metadata({**meta, **overrides}, source=str(path))            # the int8 copy's view of it
+        encoded = {OVERRIDES_KEY: json.dumps(overrides, sort_keys=True)}
+    meta.update(encoded)
+    decode_metadata(meta, source=str(target))
     del proto.metadata_props[:]
     for k, v in meta.items():
         proto.metadata_props.add(key=k, value=v)
-    return write_model_file(proto, path)
+    write_model_file(proto, target)
+    return quantize_int8(target, path) if target != path else path

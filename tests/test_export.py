@@ -1,5 +1,6 @@
 """ONNX export tests: checker + shape inference, op allowlist, ORT-vs-torch parity for every preset, equivariance
 through onnxruntime alone, metadata round trip, dynamic batch, int8 copy, CLI and its errors."""
+import hashlib
 import json
 
 import numpy as np
@@ -291,6 +292,7 @@ def test_int8_copy(tiny_cli, rng):
     q_meta = {p.key: p.value for p in proto.metadata_props}
     f_meta = {p.key: p.value for p in onnx.load(str(path)).metadata_props}
     assert q_meta.pop("precision") == "int8" and f_meta.pop("precision") == "fp32"
+    assert q_meta.pop("int8_source") == hashlib.sha256(path.read_bytes()).hexdigest()   # built from that very file
     assert q_meta == f_meta
     x = _cloud(rng, 2, model.num_points)
     a = _onnx_outputs(path, x)

@@ -8,6 +8,7 @@ import torch
 
 from equipose.errors import ConfigError
 from equipose.core.geometry import farthest_point_order
+from equipose.models import resolve_model
 from equipose.train.fitting.checkpoint import model_from_checkpoint
 from equipose.train.network.onnx_weights import checkpoint_from_onnx
 
@@ -69,7 +70,7 @@ def test_recovered_shipped_model_keeps_best_hypotheses():
 
 def test_recovery_refuses_int8_and_foreign_files(tmp_path):
     with pytest.raises(ConfigError, match="fp32"):
-        checkpoint_from_onnx(ROOT / "sdk" / "models" / "car-complete.int8.onnx")
+        checkpoint_from_onnx(resolve_model("car-complete.int8"))          # the int8 copy, built if need be
     with pytest.raises(ConfigError, match="does not exist"):
         checkpoint_from_onnx(tmp_path / "none.onnx")
 

@@ -7,8 +7,8 @@ Convention:
     file the ``PoseEstimator`` opens. This module registers the onnxruntime backends; torch-side backends live with
     the torch code (``PROVIDERS``: name → module that registers it when imported), so this module never imports them.
         onnxruntime-fp32  the model file through ``PoseEstimator``
-        onnxruntime-int8  its ``.int8.onnx`` sibling (made with ``equipose export --int8``; quantised on the fly by
-                          ``equipose.export.quantize`` when the train extra is installed and no sibling exists)
+        onnxruntime-int8  its ``.int8.onnx`` copy (``equipose.models.int8.ensure_int8``: built beside it, or in the
+                          user cache for a read-only folder, when missing or out of date)
         torch             torch eager ``EquiPoseNet`` with the model's preset (``equipose.train.bench_backends``)
         icp60             ICP-60 against the model's canonical shape (``equipose.train.bench_backends``)
 """
@@ -16,15 +16,11 @@ from __future__ import annotations
 
 import importlib
 from dataclasses import dataclass
-from pathlib import Path
-
-from equipose.core.errors import ConfigError
 
 __all__ = ["Backend", "BACKENDS", "PROVIDERS", "register_backend", "get_backend"]
 
 # torch-side backends: name → the module that registers it (imported only when that backend is asked for)
 PROVIDERS = {"torch": "equipose.train.bench_backends", "icp60": "equipose.train.bench_backends"}
-INT8_QUANTIZER = "equipose.export.quantize"          # provides quantize_int8(src, dst) (train extra)
 
 
 @dataclass(frozen=True)
@@ -54,18 +50,9 @@ def get_backend(name: str) -> Backend:
 
 
 def _int8_path(model_path: str) -> str:
-    p = Path(model_path)
-    sib = p.with_name(p.stem + ".int8.onnx")
-    if sib.is_file():
-        return str(sib)
-    import tempfile
-    out = Path(tempfile.mkdtemp()) / sib.name
-    try:
-        importlib.import_module(INT8_QUANTIZER).quantize_int8(str(p), str(out))
-    except ImportError:
-        raise ConfigError(f"no int8 model next to {p.name} ({sib.name}); make one with 'equipose export --int8' "
-                          "or install the train extra to quantise on the fly") from None
-    return str(out)
+    """The int8 copy of ``model_path`` (``equipose.models.int8``: built beside it, or in the user cache)."""
+    from equipose.models.int8 import ensure_int8
+    return str(ensure_int8(model_path))
 
 
 register_backend("onnxruntime-fp32", runs_model_file=True)

@@ -50,7 +50,7 @@ def _summary(path: pathlib.Path) -> str:
 
 def run(args) -> int:
     from equipose.export.onnx_export import DEFAULT_OPSET, export_checkpoint, export_random_model
-    from equipose.export.quantize import quantize_int8
+    from equipose.models.int8 import quantize_int8
 
     opts = {"opset": args.opset or DEFAULT_OPSET, "verify": not args.no_verify, "format_version": args.format_version}
     if args.checkpoint is not None:

@@ -1,7 +1,8 @@
 """Models shipped with the package (ONNX files with equipose metadata; ``equipose models`` lists them).
 
 Each file's metadata carries its category, preset, scale, calibration and its own test metrics (``metrics``, written
-by ``equipose eval --model M --store-metrics``); ``X.int8.onnx`` is the dynamic-int8 copy of ``X.onnx``.
+by ``equipose eval --model M --store-metrics``); ``X.int8.onnx`` is the dynamic-int8 copy of ``X.onnx``, built from
+it on first use (``equipose.models.int8``: the same outputs, bit for bit, as the file measured at release).
 ``cup-tabletop.onnx`` is the demo model. Trained on ModelNet40 (academic use only) and OCRTOC/YCB data: research use.
 
 Names follow ``arch.tag`` (as timm does): ``arch`` is the architecture preset (``equipose.core.presets``), ``tag``
@@ -12,6 +13,8 @@ from __future__ import annotations
 
 import os
 import pathlib
+
+from equipose.models.int8 import INT8_SUFFIX, ensure_int8, fp32_path_for, int8_path_for
 
 __all__ = ["MODELS_DIR", "DEMO_MODEL", "WEIGHTS", "demo_model_path", "list_models", "resolve_model_file", "model_names",
            "full_name", "result_symmetry", "split_name", "resolve_model", "model_card", "model_cards"]
@@ -31,9 +34,13 @@ def demo_model_path() -> pathlib.Path:
     return MODELS_DIR / DEMO_MODEL
 
 
+def _fp32_files() -> list:
+    return sorted(p for p in MODELS_DIR.glob("*.onnx") if not p.name.endswith(INT8_SUFFIX))
+
+
 def list_models() -> list:
-    """Paths of all ``.onnx`` files shipped in this package, sorted."""
-    return sorted(MODELS_DIR.glob("*.onnx"))
+    """Paths of the shipped models, sorted by name: each fp32 file and its int8 copy (built on first use)."""
+    return sorted([p for f in _fp32_files() for p in (f, ensure_int8(f))], key=lambda p: _key(p.name))
 
 
 def _key(name: str) -> str:
@@ -42,7 +49,7 @@ def _key(name: str) -> str:
 
 def model_names() -> list:
     """Names of the shipped models (file stems with '-' for '_'), e.g. ``cup-tabletop``, ``cup-tabletop.int8``."""
-    return [p.stem.replace("_", "-") for p in list_models()]
+    return sorted(n for f in _fp32_files() for n in (f.stem.replace("_", "-"), int8_path_for(f).stem.replace("_", "-")))
 
 
 def split_name(name: str) -> tuple:
@@ -68,7 +75,8 @@ def resolve_model(name_or_path) -> pathlib.Path:
     from equipose.core.errors import ModelFormatError
     path = pathlib.Path(name_or_path)
     if path.is_file():
-        return path
+        fp32 = fp32_path_for(path)
+        return ensure_int8(fp32) if fp32 is not None and fp32.is_file() else path
     arch, tag = split_name(str(name_or_path))
     key = _key(tag)
     if arch is not None:
@@ -77,9 +85,11 @@ def resolve_model(name_or_path) -> pathlib.Path:
         if shipped != arch.lower():
             raise ModelFormatError(f"model {str(name_or_path)!r}: {base} ships with preset {shipped!r} "
                                    f"({shipped}.{base}), not {arch!r}")
-    for p in list_models():
+    for p in _fp32_files():
         if _key(p.name) == key:
             return p
+        if _key(int8_path_for(p).name) == key:
+            return ensure_int8(p)
     raise ModelFormatError(f"model {str(name_or_path)!r} is neither a file nor a shipped model; shipped: "
                            f"{', '.join(model_names()) or 'none'} (see 'equipose models')")
 
@@ -96,6 +106,9 @@ def resolve_model_file(model_path) -> pathlib.Path:
     path = pathlib.Path(model_path)
     if not path.exists() and isinstance(model_path, str) and "/" not in model_path and "\\" not in model_path:
         path = resolve_model(model_path)                                        # a shipped model's name
+    fp32 = fp32_path_for(path)
+    if fp32 is not None and fp32.is_file():                                     # an int8 copy: built / kept current
+        path = ensure_int8(fp32)
     if path.is_dir():
         raise ModelFormatError(f"{str(path)!r} is a directory; pass the path of an equipose .onnx file in it")
     if not path.is_file():

@@ -25,7 +25,8 @@ def meta(path) -> dict:
 
 
 def main(names) -> int:
-    files = sorted(pathlib.Path("sdk/models").glob("*.onnx"))
+    from equipose.models import list_models                      # the int8 copies built from their fp32 files
+    files = [p.relative_to(pathlib.Path.cwd()) if p.is_relative_to(pathlib.Path.cwd()) else p for p in list_models()]
     for f in files:
         stem = f.name[:-len(".onnx")]
         if names and stem.split(".")[0] not in names and f.name not in names:          # NAME, or FILE.onnx exactly

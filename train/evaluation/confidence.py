@@ -341,10 +341,10 @@ def main(argv=None) -> int:
         plot_reliability(summary, a.plot, pathlib.Path(a.model).stem)
     if a.write:
         from equipose.export.onnx_export import update_metadata
-        from equipose.export.quantize import int8_path_for
-        update_metadata(a.model, confidence_calibration=meta)
+        from equipose.models.int8 import int8_path_for, is_derived_int8
+        update_metadata(a.model, confidence_calibration=meta)       # an int8 copy built from it inherits the entry
         sibling = int8_path_for(a.model)
-        if sibling.is_file():
+        if sibling.is_file() and not is_derived_int8(sibling):
             update_metadata(sibling, confidence_calibration=meta)
     return 0
 
