@@ -1,5 +1,10 @@
 """Exact rewrites of an exported equipose graph that onnxruntime's own optimiser does not make.
 
+``kernel_weights_as_inputs``: the kernel weights of every point convolution and the feature rows it gathers become
+graph inputs that the runtime computes (``equipose.core.kernel_weights``; format 3, quotient presets). In the graph
+they cost about 75 small nodes per run (offsets, squared norms, a concatenation, a transpose and a MatMul per layer,
+and the batch offsets of the row indices), each one an onnxruntime kernel launch.
+
 ``drop_normalised_biases``: a layer's bias that an InstanceNormalization cancels. Every convolution of the backbone
 adds a per-channel bias and then normalises each channel over its points and rotations (``layers.SeparableSO3Block``):
 the normalisation subtracts the channel's mean, bias included, so the bias has no effect on any output. In the graph
@@ -20,7 +25,8 @@ import numpy as np
 from equipose.core.errors import ModelFormatError
 from equipose.models.model_io import read_model_file, write_model_file
 
-__all__ = ["drop_normalised_biases", "rewrite_model", "rewrite_model_file", "max_output_difference"]
+__all__ = ["drop_normalised_biases", "kernel_weights_as_inputs", "rewrite_model", "rewrite_model_file",
+           "max_output_difference"]
 
 _LAYOUT_OPS = ("Reshape", "Transpose")          # ops that move values without mixing channels' sums
 _MAX_HOPS = 6
@@ -92,16 +98,125 @@ def drop_normalised_biases(proto) -> dict:
     return removed
 
 
-def rewrite_model(proto) -> dict:
+_KERNEL_AUG_ATOL = 1e-6                          # a hat MatMul's [13, 5] constant against the layer's kernel_aug
+
+
+def _hat_products(graph, inits: dict, users: dict) -> list:
+    """The kernel-correlation MatMuls in graph order: ``MatMul([13, 5] constant, offsets)`` read by one Relu."""
+    found = []
+    for node in graph.node:
+        if node.op_type != "MatMul" or node.input[0] not in inits or tuple(inits[node.input[0]].dims) != (13, 5):
+            continue
+        relu = users.get(node.output[0], [])
+        if len(relu) == 1 and relu[0].op_type == "Relu":
+            found.append((node, relu[0]))
+    return found
+
+
+def _layer_of_rows(rows: str, users: dict, hat_layer: dict, hops: int = 12):
+    """The layer whose kernel-correlation MatMul a row-index tensor reaches first (breadth-first over consumers)."""
+    frontier, seen = [rows], {rows}
+    for _ in range(hops):
+        nxt = []
+        for name in frontier:
+            for node in users.get(name, []):
+                if node.name in hat_layer:
+                    return hat_layer[node.name]
+                for out in node.output:
+                    if out not in seen:
+                        seen.add(out)
+                        nxt.append(out)
+        frontier = nxt
+    return None
+
+
+def kernel_weights_as_inputs(proto) -> dict:
+    """Cut a format-2 quotient graph at its kernel weights and feature-row indices, which become the inputs
+    ``kernel_weights_<l>`` / ``neighbour_rows_<l>`` (``equipose.core.kernel_weights``); the neighbourhood inputs
+    and every node that only fed the cut values go, and ``equipose_format`` becomes 3. Other graphs are left as they
+    are. Returns {input name: the graph value it replaced}."""
+    import onnx
+    from onnx import TensorProto, helper, numpy_helper
+    from onnx.utils import Extractor
+
+    from equipose.core.kernel_weights import layer_kernel_aug, rows_name, weights_name
+    from equipose.core.presets import ModelConfig
+    from equipose.runtime.session import INPUT_NAME
+
+    meta = {p.key: p.value for p in proto.metadata_props}
+    if meta.get("equipose_format") != "2" or "model_config" not in meta:
+        return {}
+    cfg = ModelConfig.from_dict(json.loads(meta["model_config"]))
+    if not cfg.quotient:
+        return {}
+    graph = proto.graph
+    inits = {t.name: t for t in graph.initializer}
+    users = _consumers(graph)
+    hats = _hat_products(graph, inits, users)
+    if len(hats) != len(cfg.layers):
+        raise ModelFormatError(f"found {len(hats)} kernel-correlation MatMuls for {len(cfg.layers)} layers; "
+                               "not an equipose quotient graph")
+    cut = {}
+    for layer, ((mm, relu), L) in enumerate(zip(hats, cfg.layers)):
+        aug = numpy_helper.to_array(inits[mm.input[0]])
+        if not np.abs(aug - layer_kernel_aug(L)).max() <= _KERNEL_AUG_ATOL:
+            raise ModelFormatError(f"layer {layer}: the graph's kernel constants are not the layer's kernel points "
+                                   f"(radius {L.kernel_radius:g}, sigma {L.sigma:g}); not an equipose quotient graph")
+        cut[weights_name(layer)] = relu.output[0]
+    hat_layer = {mm.name: layer for layer, (mm, _) in enumerate(hats)}
+    for node in graph.node:
+        is_rows = node.op_type == "Gather" and node.input[1] not in inits and \
+            any(a.name == "axis" and a.i == 1 for a in node.attribute)
+        layer = _layer_of_rows(node.input[1], users, hat_layer) if is_rows else None
+        if layer:
+            cut.setdefault(rows_name(layer), node.input[1])
+    expected = {weights_name(i) for i in range(len(cfg.layers))} | {rows_name(i) for i in range(1, len(cfg.layers))}
+    if set(cut) != expected:
+        raise ModelFormatError(f"kernel inputs found {sorted(cut)}, expected {sorted(expected)}; not an equipose "
+                               "quotient graph")
+    rename = {old: new for new, old in cut.items()}
+    for node in graph.node:
+        node.input[:] = [rename.get(n, n) for n in node.input]
+        node.output[:] = [rename.get(n, n) for n in node.output]
+    shapes = {}
+    for i, L in enumerate(cfg.layers):
+        shapes[weights_name(i)] = (TensorProto.FLOAT, ["batch", L.points_out, 13, L.neighbours])
+        if i:
+            shapes[rows_name(i)] = (TensorProto.INT64, [f"batch_x_{L.points_out * L.neighbours}"])
+    kept = [vi for vi in graph.value_info if vi.name not in rename]
+    del graph.value_info[:]
+    graph.value_info.extend(kept + [helper.make_tensor_value_info(n, *shapes[n]) for n in cut])
+    outputs = [o.name for o in graph.output]
+    sub = Extractor(proto).extract_model([INPUT_NAME] + sorted(cut), outputs)
+    points = next(i for i in graph.input if i.name == INPUT_NAME)
+    del sub.graph.input[:]
+    sub.graph.input.append(points)
+    for name in [weights_name(i) for i in range(len(cfg.layers))] + [rows_name(i) for i in range(1, len(cfg.layers))]:
+        sub.graph.input.append(helper.make_tensor_value_info(name, *shapes[name]))
+    del sub.graph.value_info[:]
+    for field in ("ir_version", "producer_name", "producer_version", "doc_string"):
+        setattr(sub, field, getattr(proto, field))
+    del sub.opset_import[:]
+    sub.opset_import.extend(proto.opset_import)
+    meta["equipose_format"] = "3"
+    for k, v in meta.items():
+        sub.metadata_props.add(key=k, value=v)
+    onnx.checker.check_model(sub, full_check=True)
+    proto.CopyFrom(sub)
+    return cut
+
+
+def rewrite_model(proto, *, kernel_inputs: bool = True) -> dict:
     """Every rewrite of this module on ``proto`` (in place, metadata entry ``dropped_biases`` merged); returns
-    {rewrite: what it removed}."""
+    {rewrite: what it removed}. ``kernel_inputs=False`` keeps a format-2 graph's neighbourhood inputs."""
     dropped = drop_normalised_biases(proto)
     if dropped:
         entry = next((p for p in proto.metadata_props if p.key == "dropped_biases"), None)
         if entry is None:
             entry = proto.metadata_props.add(key="dropped_biases", value="{}")
         entry.value = json.dumps({**json.loads(entry.value), **dropped}, sort_keys=True)
-    return {"drop_normalised_biases": dropped}
+    cut = kernel_weights_as_inputs(proto) if kernel_inputs else {}
+    return {"drop_normalised_biases": dropped, "kernel_weights_as_inputs": cut}
 
 
 def max_output_difference(before, after, batch: int = 2, seed: int = 0) -> float:
@@ -118,9 +233,11 @@ def max_output_difference(before, after, batch: int = 2, seed: int = 0) -> float
     sessions = [ort.InferenceSession(p.SerializeToString(), so, providers=["CPUExecutionProvider"])
                 for p in (before, after)]
     x = (np.random.default_rng(seed).normal(size=(batch, int(meta["num_points"]), 3)) * 0.3).astype(np.float32)
-    feeds = GraphIO(sessions[0], meta).feeds(x)                                 # points + neighbourhoods
-    outs = [s.run(None, feeds) for s in sessions]
-    return max(float(np.max(np.abs(a - b))) for a, b in zip(*outs))
+    outs = []
+    for proto, sess in zip((before, after), sessions):                          # each fed as the runtime feeds it
+        io = GraphIO(sess, {p.key: p.value for p in proto.metadata_props})
+        outs.append(dict(zip(io.outputs, sess.run(io.outputs, io.feeds(x)))))
+    return max(float(np.max(np.abs(outs[0][k] - outs[1][k]))) for k in outs[0])
 
 
 def rewrite_model_file(path, out=None, atol: float | None = None) -> dict:

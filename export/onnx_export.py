@@ -8,8 +8,11 @@ Convention:
     ``hypothesis_translations`` [batch, 60, 3] (model units, input frame). Hypothesis j is the group rotation
     ``icosahedral.ANCHORS[j]`` (metadata ``anchors``). The runtime computes the neighbourhoods and the hypothesis
     scores (``equipose.core.neighbourhoods``, ``equipose.core.scores``): compiled, they take a fraction of the time of
-    onnxruntime's TopK and MatMuls. ``format_version=1`` writes the older contract (both inside the graph, one input);
-    ``upgrade_model_file`` turns such a file into a format-2 one with the same network.
+    onnxruntime's TopK and MatMuls. Format 3 (the default for quotient presets) goes one step further: the graph is
+    cut at each layer's kernel weights and gathered feature rows, which the runtime computes from the neighbourhoods
+    (``equipose.core.kernel_weights``, the rewrite ``graph_rewrite.kernel_weights_as_inputs``).
+    ``format_version=1`` writes the older contract (all inside the graph, one input); ``upgrade_model_file`` turns
+    such a file into a format-2 one with the same network.
     The graph uses the default ONNX domain only; the group tables are constant int64 ``Gather`` indices.
 
 Uses the torch 2.13 ``torch.export``-based exporter (``dynamo=True``, needs onnxscript) with weights inlined.
@@ -116,7 +119,7 @@ def _drop_initializer_value_info(proto):
 def export_model(model, path, *, category: str, scale: float, symmetry: str = "none", calibration=None, handle=None,
                  shape_prior: str | None = None,
                  random_init: bool = False, training: dict | None = None, metrics: dict | None = None,
-                 opset: int = DEFAULT_OPSET, verify: bool = True, format_version: int = 2) -> pathlib.Path:
+                 opset: int = DEFAULT_OPSET, verify: bool = True, format_version: int | None = None) -> pathlib.Path:
     """Export an ``EquiPoseNet`` to a single self-describing ONNX file and return its path.
 
     Args:
@@ -127,8 +130,10 @@ def export_model(model, path, *, category: str, scale: float, symmetry: str = "n
             training, metrics: written to ``metadata_props`` via ``equipose.core.metadata.encode_metadata``.
         opset: ONNX opset of the default domain.
         verify: run the file once in onnxruntime on the export example and compare with torch (max abs ≤ 1e-4).
-        format_version: 2 (neighbourhoods as inputs, no scores in the graph) or 1 (both computed in the graph, for
-            readers of the ONNX file that do not compute them; the SDK runs either).
+        format_version: 3 (each layer's kernel weights and feature rows as inputs, no scores in the graph; quotient
+            presets only), 2 (the neighbourhoods as inputs, no scores in the graph) or 1 (both computed in the graph,
+            for readers of the ONNX file that do not compute them); None: 3 for a quotient preset, else 2. The SDK
+            runs all three.
     Raises:
         ConfigError / MetadataError for bad arguments; RuntimeError if the exported graph disagrees with torch.
     """
@@ -158,12 +163,17 @@ def export_model(model, path, *, category: str, scale: float, symmetry: str = "n
     path.parent.mkdir(parents=True, exist_ok=True)
 
     was_training = model.training
-    if format_version not in (1, 2):
-        raise ConfigError(f"format_version must be 1 or 2, got {format_version!r}")
-    specs = neighbourhood_specs(cfg.layers) if format_version == 2 else []
+    if format_version is None:
+        format_version = 3 if cfg.quotient else 2
+    if format_version not in (1, 2, 3):
+        raise ConfigError(f"format_version must be 1, 2 or 3, got {format_version!r}")
+    if format_version == 3 and not cfg.quotient:
+        raise ConfigError(f"format 3 (kernel weights as inputs) needs a quotient preset; {cfg.name!r} is not one: "
+                          "export it with format_version=2")
+    specs = neighbourhood_specs(cfg.layers) if format_version >= 2 else []
     neighbour_inputs = [input_name(sp) for sp in specs]
     names = OUTPUT_NAMES + ((SCORES,) if format_version == 1 else ())
-    meta["equipose_format"] = str(format_version)
+    meta["equipose_format"] = str(min(format_version, 2))                 # format 3: a rewrite of format 2
     wrapper = _contract_module(model, names, neighbour_inputs)            # sets eval mode on the net
     gen = torch.Generator().manual_seed(1234)
     example = torch.randn(2, cfg.num_points, 3, generator=gen) * 0.2       # [2, N, 3]; batch 2 keeps the dim symbolic
@@ -186,18 +196,18 @@ def export_model(model, path, *, category: str, scale: float, symmetry: str = "n
     del proto.metadata_props[:]
     for k, v in meta.items():
         proto.metadata_props.add(key=k, value=v)
-    rewrite_model(proto)                                                   # exact rewrites (graph_rewrite)
+    rewrite_model(proto, kernel_inputs=format_version == 3)                # exact rewrites (graph_rewrite)
     onnx.checker.check_model(proto, full_check=True)
     write_model_file(proto, path)
     if verify:
-        _verify_parity(wrapper, path, example, neighbour_inputs)
+        _verify_parity(wrapper, path, example, specs)
     return path
 
 
-def _verify_parity(wrapper, path: pathlib.Path, example, neighbour_inputs):
+def _verify_parity(wrapper, path: pathlib.Path, example, specs):
     """Run the written file in onnxruntime on ``example`` [B, N, 3] as the runtime does (``GraphIO``: neighbourhoods
-    and hypothesis scores computed outside a format-2 graph) and compare all four outputs with torch given the same
-    neighbourhoods."""
+    or kernel inputs and hypothesis scores computed outside a format-2 / format-3 graph) and compare all four outputs
+    with torch given the same neighbourhoods (``specs``: the model's, none for format 1)."""
     import onnxruntime as ort
     import torch
 
@@ -206,7 +216,7 @@ def _verify_parity(wrapper, path: pathlib.Path, example, neighbour_inputs):
     x = example.numpy()
     feeds = io.feeds(x)
     got = io.complete(dict(zip(io.outputs, sess.run(io.outputs, feeds))), x)
-    given = {k: torch.from_numpy(feeds[k]) for k in neighbour_inputs} or None
+    given = {input_name(sp): torch.from_numpy(nearest_neighbourhoods(x, sp)) for sp in specs} or None
     with torch.no_grad():
         ref = {k: v.numpy() for k, v in wrapper.net(example, neighbours=given).items()}
     errs = {n: float(np.abs(got[n] - ref[n]).max()) for n in OUTPUT_NAMES + (SCORES,)}

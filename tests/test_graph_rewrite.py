@@ -87,8 +87,54 @@ def test_the_file_check_refuses_a_rewrite_that_changes_outputs(tmp_path, monkeyp
     assert src.read_bytes() == (MODELS / "cup-tabletop.onnx").read_bytes()    # left as it was
 
 
-@pytest.mark.parametrize("path", sorted(MODELS.glob("*.onnx")), ids=lambda p: p.name)
+@pytest.mark.parametrize("path", sorted(p for p in MODELS.glob("*.onnx") if not p.name.endswith(".int8.onnx")),
+                         ids=lambda p: p.name)
 def test_shipped_files_are_rewritten(path):
-    proto = onnx.load(str(path))
-    assert drop_normalised_biases(proto) == {}
-    assert json.loads({p.key: p.value for p in proto.metadata_props}["dropped_biases"])   # the layers' weights named
+    from equipose.models.int8 import ensure_int8
+    for f in (path, ensure_int8(path)):                                         # the fp32 file and its int8 copy
+        proto = onnx.load(str(f))
+        meta = {p.key: p.value for p in proto.metadata_props}
+        assert meta["equipose_format"] == "3", f.name                           # kernel weights as inputs
+        assert drop_normalised_biases(proto) == {}
+        assert json.loads(meta["dropped_biases"])                               # the layers' weights named
+
+
+@pytest.fixture(scope="module")
+def quotient_format2(tmp_path_factory):
+    """A random-weight ``edge-q`` model written as format 2 (the neighbourhoods as inputs)."""
+    pytest.importorskip("torch")
+    from equipose.export.onnx_export import export_random_model
+    path = tmp_path_factory.mktemp("format2") / "q.onnx"
+    export_random_model("edge-q", path, partial=True, category="mug", scale=0.2, format_version=2, verify=False)
+    return path
+
+
+def test_kernel_weights_become_inputs(quotient_format2, tmp_path):
+    from equipose.core.kernel_weights import kernel_input_names
+    from equipose.core.presets import get_preset
+    from equipose.runtime.estimator import PoseEstimator
+    out = tmp_path / "q3.onnx"
+    res = rewrite_model_file(quotient_format2, out)
+    before, after = onnx.load(str(quotient_format2)), onnx.load(str(out))
+    layers = get_preset("edge-q").layers
+    assert [i.name for i in after.graph.input] == ["points"] + kernel_input_names(layers)
+    assert {p.key: p.value for p in after.metadata_props}["equipose_format"] == "3"
+    assert len(after.graph.node) <= len(before.graph.node) - 60                 # measured 318 → 243 on edge-q
+    assert len(res["removed"]["kernel_weights_as_inputs"]) == 2 * len(layers) - 1
+    assert res["max_abs_diff"] <= 1e-5
+    x = (np.random.default_rng(1).normal(size=(3, 256, 3)) * 0.3).astype(np.float32)
+    a = PoseEstimator(quotient_format2, threads=1).run_model(x)
+    b = PoseEstimator(out, threads=1).run_model(x)
+    for k in a:
+        np.testing.assert_allclose(a[k], b[k], atol=1e-5)
+
+
+def test_kernel_rewrite_leaves_other_graphs(quotient_format2, tmp_path):
+    pytest.importorskip("torch")
+    from equipose.export.graph_rewrite import kernel_weights_as_inputs
+    from equipose.export.onnx_export import export_random_model
+    tiny = export_random_model("tiny", tmp_path / "t.onnx", partial=True, category="mug", scale=0.2, verify=False)
+    for path in (tiny, MODELS / "cup-tabletop.onnx"):                            # not quotient; already format 3
+        proto = onnx.load(str(path))
+        before = proto.SerializeToString()
+        assert kernel_weights_as_inputs(proto) == {} and proto.SerializeToString() == before

@@ -1,9 +1,10 @@
 """onnxruntime sessions of equipose models: opening, I/O checks, metadata without a full estimator.
 
 Convention: an equipose model takes ``points`` [batch, N, 3] float32 (model units, FPS-ordered) and outputs
-``GRAPH_OUTPUTS``. Format-2 graphs also take the points' neighbourhoods and leave the hypothesis scores out; the
-runtime computes both (``GraphIO``), so a run always yields the four ``OUTPUT_NAMES``. Format-1 graphs take only the
-points and compute both themselves. The equipose metadata lives in the ONNX custom metadata map.
+``GRAPH_OUTPUTS``. Format-2 graphs also take the points' neighbourhoods and leave the hypothesis scores out; format-3
+graphs take each layer's kernel weights and gathered feature rows instead of the neighbourhoods
+(``equipose.core.kernel_weights``); the runtime computes all of these (``GraphIO``), so a run always yields the four
+``OUTPUT_NAMES``. Format-1 graphs take only the points and compute the rest themselves. The equipose metadata lives in the ONNX custom metadata map.
 """
 from __future__ import annotations
 
@@ -13,6 +14,7 @@ import pathlib
 import numpy as np
 
 from equipose.core.errors import ModelFormatError
+from equipose.core.kernel_weights import ROWS_PREFIX, WEIGHTS_PREFIX, kernel_input_names, kernel_inputs
 from equipose.core.model_file import read_metadata  # noqa: F401  (re-exported: reading metadata needs no session)
 from equipose.core.neighbourhoods import INPUT_PREFIX, input_name, neighbourhood_specs, neighbourhoods
 from equipose.core.presets import ModelConfig
@@ -63,9 +65,11 @@ def check_io(session, name: str, num_points: int):
     """Check the session's inputs/outputs against the equipose layout; returns the static batch size (or None)."""
     ins = session.get_inputs()
     outs = {o.name: o for o in session.get_outputs()}
-    if not ins or ins[0].name != INPUT_NAME or any(not i.name.startswith(INPUT_PREFIX) for i in ins[1:]):
-        raise ModelFormatError(f"{name}: expected the input {INPUT_NAME!r} (then only {INPUT_PREFIX}<support> "
-                               f"inputs), got {[i.name for i in ins]}; not an equipose model")
+    if not ins or ins[0].name != INPUT_NAME or \
+            any(not i.name.startswith((INPUT_PREFIX, WEIGHTS_PREFIX, ROWS_PREFIX)) for i in ins[1:]):
+        raise ModelFormatError(f"{name}: expected the input {INPUT_NAME!r} (then only {INPUT_PREFIX}<support>, "
+                               f"{WEIGHTS_PREFIX}<layer> or {ROWS_PREFIX}<layer> inputs), got "
+                               f"{[i.name for i in ins]}; not an equipose model")
     missing = [o for o in GRAPH_OUTPUTS if o not in outs]
     if missing:
         raise ModelFormatError(f"{name}: outputs {missing} missing (has {sorted(outs)}); not an equipose model")
@@ -80,8 +84,9 @@ class GraphIO:
     """What a model's graph takes and gives beyond ``points``, and how the runtime completes it.
 
     Format 2: the graph takes the neighbourhoods ``neighbours_<support>`` [B, centres, k] int64 as inputs and outputs
-    no scores; both are computed here (``equipose.core.neighbourhoods``, ``equipose.core.scores``). Format 1: the
-    graph computes both itself. Built from a session (or any object with ``get_inputs`` / ``get_outputs``) and the
+    no scores; both are computed here (``equipose.core.neighbourhoods``, ``equipose.core.scores``). Format 3: the
+    graph takes each layer's kernel weights and feature rows (``equipose.core.kernel_weights``, from the same
+    neighbourhoods) instead. Format 1: the graph computes all of it itself. Built from a session (or any object with ``get_inputs`` / ``get_outputs``) and the
     model's metadata (``partial``, ``model_config``).
     """
 
@@ -90,19 +95,30 @@ class GraphIO:
         cfg = ModelConfig.from_dict(json.loads(cfg) if isinstance(cfg, str) else cfg)
         inputs = [i.name for i in session.get_inputs()][1:]
         specs = {input_name(s): s for s in neighbourhood_specs(cfg.layers)}
-        unknown = sorted(set(inputs) - set(specs))
-        if unknown:
-            raise ModelFormatError(f"{name}: graph inputs {unknown} match no neighbourhood of its layers "
-                                   f"({sorted(specs)}); re-export the model")
-        self.neighbourhoods = [specs[n] for n in inputs]                        # in graph-input order
+        self.layers = cfg.layers
+        self.kernel_inputs = any(n.startswith((WEIGHTS_PREFIX, ROWS_PREFIX)) for n in inputs)
+        if self.kernel_inputs:                                                  # format 3
+            if sorted(inputs) != sorted(kernel_input_names(cfg.layers)):
+                raise ModelFormatError(f"{name}: graph inputs {inputs} are not the kernel inputs of its "
+                                       f"{len(cfg.layers)} layers ({kernel_input_names(cfg.layers)}); re-export "
+                                       "the model")
+            self.neighbourhoods = list(specs.values())
+        else:
+            unknown = sorted(set(inputs) - set(specs))
+            if unknown:
+                raise ModelFormatError(f"{name}: graph inputs {unknown} match no neighbourhood of its layers "
+                                       f"({sorted(specs)}); re-export the model")
+            self.neighbourhoods = [specs[n] for n in inputs]                    # in graph-input order
         self.outputs = [o.name for o in session.get_outputs() if o.name in OUTPUT_NAMES]
         partial = metadata["partial"]
         self.partial = partial == "true" if isinstance(partial, str) else bool(partial)
         self.score_points = int(cfg.score_points)
 
     def feeds(self, x: np.ndarray) -> dict:
-        """The graph's inputs for ``x`` [B, N, 3] float32 model units: the points and their neighbourhoods."""
-        return {INPUT_NAME: x, **neighbourhoods(x, self.neighbourhoods)}
+        """The graph's inputs for ``x`` [B, N, 3] float32 model units: the points and their neighbourhoods
+        (format 2), or the kernel weights and feature rows computed from them (format 3)."""
+        nbh = neighbourhoods(x, self.neighbourhoods)
+        return {INPUT_NAME: x, **(kernel_inputs(x, self.layers, nbh) if self.kernel_inputs else nbh)}
 
     def complete(self, outputs: dict, x: np.ndarray) -> dict:
         """The graph's ``outputs`` on ``x`` with ``hypothesis_scores`` [B, 60] added when the graph does not compute
