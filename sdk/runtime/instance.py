@@ -25,7 +25,7 @@ from equipose.core.errors import ConfigError
 from equipose.core.geometry import farthest_point_order
 from equipose.preprocess import check_points, prepare_points
 
-__all__ = ["InstanceModel", "build_instance_model", "INSTANCE_ITERS", "undecided_turn"]
+__all__ = ["InstanceModel", "build_instance_model", "INSTANCE_ITERS", "turned_fits", "undecided_turn", "better_turn"]
 
 TEMPLATE_POINTS = 1024          # model points kept (FPS) for ICP
 COARSE_ITERS = 3                # ICP steps for every hypothesis before the k best are refined
@@ -70,29 +70,53 @@ def build_instance_model(est, model_points, *, k: int = 10, iters: int = INSTANC
     return InstanceModel(points_m=q, template=sub / est.scale @ A.T + b, A=A, b=b, k=k, iters=iters)
 
 
-def undecided_turn(points: np.ndarray, template: np.ndarray, R: np.ndarray, t: np.ndarray, margin: float) -> bool:
-    """Whether a turn of the chosen pose about one of the template's principal axes fits the view about as well.
+def turned_fits(points: np.ndarray, template: np.ndarray, R: np.ndarray, t: np.ndarray) -> tuple:
+    """The chosen pose's turns about the template's principal axes, each after ``TURN_ITERS`` ICP steps.
 
     Convention: ``points`` [N, 3] the observation, ``template`` [M, 3] FPS-ordered, both model units; (``R`` [3, 3],
     ``t`` [3]) the chosen pose (template → observation). Residuals (mean squared observed → template distance) are
     taken on the template's first ``TURN_TEMPLATE_POINTS`` points. Each turn of ``TURN_ANGLES_DEG`` about each
-    principal axis through the template's centroid gets ``TURN_ITERS`` ICP steps; True when one ends more than ``TURN_MIN_DEG`` from the pose and within ``margin`` of its residual,
-    (r − residual) / r < margin — the view cannot tell the turn from the pose (a symmetry axis, or the side that would
-    tell is hidden).
+    principal axis through the template's centroid is one ICP start. Returns (the pose's residual, the turns' poses
+    [T, 3, 3] and [T, 3], their residuals [T], [T] bool: ended more than ``TURN_MIN_DEG`` from the pose, i.e. did not
+    slide back to it).
     """
     from scipy.spatial.transform import Rotation
 
     from equipose.core.icp import icp_multi
     template = template[:TURN_TEMPLATE_POINTS]                                  # FPS prefix: an even subsample
     _, _, base = icp_multi(points, template, R[None], t[None], iters=0)        # the pose's residual on it
-    residual = float(base[0])
     c = template.mean(0)                                                        # [3]
     _, _, axes = np.linalg.svd(template - c, full_matrices=False)               # [3, 3] rows: principal axes
     turns = Rotation.from_rotvec(np.concatenate([np.radians(TURN_ANGLES_DEG)[:, None] * a[None] for a in axes]))
     Rs = R @ turns.as_matrix()                                                  # [T, 3, 3] turned about c
     ts = t + R @ c - np.einsum("kij,j->ki", Rs, c)                              # [T, 3] c stays where it was
-    Rf, _, res = icp_multi(points, template, Rs, ts, iters=TURN_ITERS)
-    rel = (res - residual) / np.maximum(res, 1e-12)                             # [T]
+    Rf, tf, res = icp_multi(points, template, Rs, ts, iters=TURN_ITERS)
     cos = (np.einsum("kij,ij->k", Rf, R) - 1.0) / 2.0                           # [T] cos of the angle to the pose
-    away = cos < np.cos(np.radians(TURN_MIN_DEG))                               # did not slide back to the pose
+    return float(base[0]), Rf, tf, res, cos < np.cos(np.radians(TURN_MIN_DEG))
+
+
+def undecided_turn(points: np.ndarray, template: np.ndarray, R: np.ndarray, t: np.ndarray, margin: float,
+                   fits: tuple | None = None) -> bool:
+    """Whether a turn of the chosen pose about one of the template's principal axes fits the view about as well
+    (``turned_fits``, or its result ``fits`` for this pose): one that did not slide back ends within ``margin`` of
+    the pose's residual, (r − residual) / r < margin — the view cannot tell the turn from the pose (a symmetry axis,
+    or the side that would tell is hidden)."""
+    residual, _, _, res, away = fits if fits is not None else turned_fits(points, template, R, t)
+    rel = (res - residual) / np.maximum(res, 1e-12)                             # [T]
     return bool(np.any((rel < margin) & away))
+
+
+def better_turn(points: np.ndarray, template: np.ndarray, residual: float, fits: tuple, iters: int):
+    """A turn that fits the view better than the chosen pose: every turned start of ``fits`` (``turned_fits``)
+    whose residual is already below the pose's is ICP-converged (``iters``) on the whole ``template``; the best as
+    (R [3, 3], t [3], residual) when its converged residual beats ``residual`` (the pose's on the whole template),
+    else None. The hypotheses' starts can all miss the basin of the true pose (a seed network of another
+    category)."""
+    from equipose.core.icp import icp_multi
+    base, Rf, tf, res, away = fits
+    better = away & (res < base)                                                # [T]
+    if not better.any():
+        return None
+    Rj, tj, rj = icp_multi(points, template, Rf[better], tf[better], iters=iters)
+    j = int(np.argmin(rj))
+    return (Rj[j], tj[j], float(rj[j])) if rj[j] < residual else None

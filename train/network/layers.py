@@ -19,6 +19,7 @@ from torch import nn
 from torch.nn import functional as F
 
 from equipose.core import icosahedral
+from equipose.core.kernel_weights import kernel_aug as core_kernel_aug
 from equipose.core.neighbourhoods import input_name, neighbourhood_specs
 from equipose.core.presets import LayerSpec
 
@@ -50,10 +51,9 @@ def flat_rows(idx: torch.Tensor, p1: int) -> torch.Tensor:
 
 def kernel_aug(kernel: np.ndarray, sigma: float) -> torch.Tensor:
     """Kernel points [R, 3] (model units) → [R, 5] rows [2κ/σ, −1/σ, 1 − ‖κ‖²/σ], so that the hat weight
-    1 − ‖r − κ‖²/σ of an offset r is one MatMul with [r, ‖r‖², 1] (``hat_weights``)."""
-    aug = np.concatenate([2.0 * kernel / sigma, np.full((len(kernel), 1), -1.0 / sigma),
-                          1.0 - (kernel ** 2).sum(1, keepdims=True) / sigma], 1)          # [R, 5]
-    return torch.tensor(aug, dtype=torch.float32)
+    1 − ‖r − κ‖²/σ of an offset r is one MatMul with [r, ‖r‖², 1] (``hat_weights``; the runtime's
+    ``equipose.core.kernel_weights.kernel_aug`` computes format-3 graph inputs with the same rows)."""
+    return torch.from_numpy(core_kernel_aug(kernel, sigma))
 
 
 def hat_weights(xyz: torch.Tensor, spec: LayerSpec, aug: torch.Tensor, knn: torch.Tensor | None = None) -> tuple:

@@ -1,8 +1,10 @@
 """Stage ``instance`` (instance-level mode, ``PoseEstimator(model_points=...)``): the object's own model points take
 the place of the predicted shape (``equipose.runtime.instance``): every hypothesis gets a few ICP steps against them,
-the ``k`` best go on to convergence, and the winner is composed back into the CAD frame. ``ambiguous`` also when a
-turn of the winner about one of the model's principal axes fits within the flip margin (10 %) after a few ICP steps
-(``equipose.runtime.instance.undecided_turn``): a turn about a symmetry axis that the view cannot decide.
+the ``k`` best go on to convergence, and the winner is composed back into the CAD frame. The winner's turns about the
+model's principal axes get a few ICP steps (``equipose.runtime.instance.turned_fits``): one that fits better is
+converged and takes the winner's place when it ends better (``better_turn``: the hypotheses can all miss the true
+pose's basin), and ``ambiguous`` is also set when one fits within the flip margin (10 %): a turn about a symmetry
+axis that the view cannot decide (``undecided_turn``).
 
 Convention: model units, centred camera frame; the result is the CAD model's pose (camera ← CAD), no symmetry.
 """
@@ -11,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 from equipose.runtime.hypotheses import AMBIGUOUS_MARGIN, select_hypothesis
-from equipose.runtime.instance import COARSE_ITERS, undecided_turn
+from equipose.runtime.instance import COARSE_ITERS, better_turn, turned_fits, undecided_turn
 from equipose.runtime.refine import refine_hypotheses
 from equipose.runtime.stage import ObjectState, Stage, register_stage
 
@@ -44,11 +46,18 @@ class InstanceStage(Stage):
         t_obj = np.einsum("aij,j->ai", R, inst.b) + t                           # [60, 3] model units
         sel = select_hypothesis(R_obj, t_obj, s, symmetry="none", top_k=state.top_k, prefer=state.prefer,
                                 prefer_margin=state.prefer_margin)
+        i = sel.index
+        fits = turned_fits(state.points, inst.template, R[i], t[i])            # the winner's principal-axis turns
+        better = better_turn(state.points, inst.template, float(s[i]), fits, inst.iters)
+        if better is not None:                                                  # a turn fits better: it wins
+            R[i], t[i], s[i] = better
+            R_obj[i], t_obj[i] = R[i] @ inst.A, R[i] @ inst.b + t[i]
+            fits = turned_fits(state.points, inst.template, R[i], t[i])
         # a turn of the chosen pose that fits almost as well (e.g. about a symmetry axis the view cannot decide)
-        sel.ambiguous = bool(sel.ambiguous or undecided_turn(state.points, inst.template, R[sel.index],
-                                                             t[sel.index], AMBIGUOUS_MARGIN))
-        U, _, Vt = np.linalg.svd(R_obj[sel.index])
+        sel.ambiguous = bool(sel.ambiguous or undecided_turn(state.points, inst.template, R[i], t[i],
+                                                             AMBIGUOUS_MARGIN, fits=fits))
+        U, _, Vt = np.linalg.svd(R_obj[i])
         state.R, state.t, state.scores, state.symmetry = R_obj, t_obj, s, "none"
         state.selection, state.confidence, state.ambiguous = sel, sel.confidence, sel.ambiguous
-        state.set_pose(U @ np.diag([1.0, 1.0, np.linalg.det(U @ Vt)]) @ Vt, t_obj[sel.index])
+        state.set_pose(U @ np.diag([1.0, 1.0, np.linalg.det(U @ Vt)]) @ Vt, t_obj[i])
         state.canonical_category = inst.points_m / self.scale                   # [M, 3] CAD frame, model units
