@@ -144,3 +144,20 @@ def test_scorer_trained_on_own_poses_learns_which_turn_is_true(rng):
     tc = decode_metadata_value(encode_turn_classifier(point, head, ["z"], 0.0, 1.0))
     picked = [int(np.argmax(score_sets(tc["weights"], turned_sets(X[i], R_s[i], t[i], ["z"])))) for i in range(48, V)]
     assert np.mean(np.array(picked) == lab[48:]) >= 0.9                           # held-out views
+
+
+def test_refined_calibration_ignores_category_frame_stages(tiny_model, tmp_path, rng):
+    """A file's category-frame stages (here a turn classifier, as an int8 copy inherits from its fp32 file) stay off
+    while ``calibrate_onnx_refined`` measures the raw learned-frame poses: the calibration is the plain file's."""
+    from equipose.export.onnx_export import update_metadata
+    from equipose.train.evaluation.calibration import calibrate_onnx_refined
+    path = tmp_path / "with_turns.onnx"
+    shutil.copy(tiny_model, path)
+    point = [(rng.normal(size=(8, 3)).astype(np.float32), np.zeros(8, np.float32))]
+    head = [(rng.normal(size=(1, 16)).astype(np.float32), np.ones(1, np.float32))]    # always turns
+    update_metadata(path, turn_classifier=encode_turn_classifier(point, head, ["x", "y", "z"], 0.0, 0.1))
+    canon = rng.normal(size=(6, 256, 3)) * [0.4, 0.3, 0.2]
+    a = calibrate_onnx_refined(tiny_model, canon, k=2, iters=3)
+    b = calibrate_onnx_refined(path, canon, k=2, iters=3)
+    np.testing.assert_allclose(a["rotation"], b["rotation"], atol=1e-9)
+    np.testing.assert_allclose(a["translation"], b["translation"], atol=1e-9)

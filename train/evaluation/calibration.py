@@ -21,6 +21,8 @@ __all__ = ["so3_mean", "ransac_rotation", "ransac_axis", "ransac_translation", "
            "apply_calibration", "frame_with_axis", "AXES", "calibrate_onnx_refined"]
 
 AXES = {"x": 0, "y": 1, "z": 2}
+# pipeline stages that act in the category frame: off while a calibration measures the raw learned-frame poses
+CATEGORY_FRAME_STAGES = ("rest_facet", "frame_priors", "flip", "turn", "cylinder", "handle")
 
 
 def so3_mean(Rs: np.ndarray) -> np.ndarray:
@@ -175,7 +177,9 @@ def calibrate_onnx_refined(model_path, canonical_points: np.ndarray, k: int = 5,
     without it: its inputs sit at the origin, with no camera to see them from, and the re-scoring only chooses
     between distinct poses, which leaves the frame offset of the right ones as it is), and ``polish`` (ICP iterations
     on the selected pose, ``PoseEstimator(polish=...)``) and ``densify`` (the ICP template's midpoints,
-    ``PoseEstimator(densify=...)``): the calibration runs with both. torch-free.
+    ``PoseEstimator(densify=...)``): the calibration runs with both. The stages that work in the category frame
+    (``CATEGORY_FRAME_STAGES``: the file's flip templates, turn classifier, frame priors, rest facet, cylinder and
+    handle, which an int8 copy carries from its fp32 file) are off: the poses here are raw. torch-free.
     """
     from equipose.runtime.estimator import PoseEstimator
 
@@ -183,10 +187,9 @@ def calibrate_onnx_refined(model_path, canonical_points: np.ndarray, k: int = 5,
     if pts.ndim != 3 or pts.shape[-1] != 3:
         raise ConfigError(f"canonical_points must be [K, N, 3], got {pts.shape}")
     est = PoseEstimator(model_path, threads=1, refine=int(k), refine_iters=int(iters), copies=int(copies),
-                        visibility=None, polish=int(polish), densify=int(densify))
+                        visibility=None, polish=int(polish), densify=int(densify),
+                        stages={name: False for name in CATEGORY_FRAME_STAGES})
     est.calibration_rotation, est.calibration_translation = np.eye(3), np.zeros(3)     # raw, learned-frame poses
-    est.metadata = {**est.metadata, "handle": None, "shape_prior": None, "rest_facet": None,  # stages need the category
-                    "flip_templates": None}                                             # frame: off
     res = [r for i in range(0, len(pts), 32)                                          # batches of 32: bounded memory
            for r in est.predict_points_batch([p * est.scale for p in pts[i:i + 32]])]  # metres, object at the origin
     dR = np.stack([r.rotation for r in res])                                          # [K, 3, 3]
