@@ -25,8 +25,8 @@ import numpy as np
 from equipose.core.errors import ModelFormatError
 from equipose.models.model_io import read_model_file, write_model_file
 
-__all__ = ["drop_normalised_biases", "kernel_weights_as_inputs", "rewrite_model", "rewrite_model_file",
-           "max_output_difference"]
+__all__ = ["drop_normalised_biases", "kernel_weights_as_inputs", "extract_graph", "rewrite_model",
+           "rewrite_model_file", "max_output_difference"]
 
 _LAYOUT_OPS = ("Reshape", "Transpose")          # ops that move values without mixing channels' sums
 _MAX_HOPS = 6
@@ -137,7 +137,6 @@ def kernel_weights_as_inputs(proto) -> dict:
     are. Returns {input name: the graph value it replaced}."""
     import onnx
     from onnx import TensorProto, helper, numpy_helper
-    from onnx.utils import Extractor
 
     from equipose.core.kernel_weights import layer_kernel_aug, rows_name, weights_name
     from equipose.core.presets import ModelConfig
@@ -187,23 +186,31 @@ def kernel_weights_as_inputs(proto) -> dict:
     del graph.value_info[:]
     graph.value_info.extend(kept + [helper.make_tensor_value_info(n, *shapes[n]) for n in cut])
     outputs = [o.name for o in graph.output]
-    sub = Extractor(proto).extract_model([INPUT_NAME] + sorted(cut), outputs)
+    sub = extract_graph(proto, [INPUT_NAME] + sorted(cut), outputs, {**meta, "equipose_format": "3"})
     points = next(i for i in graph.input if i.name == INPUT_NAME)
     del sub.graph.input[:]
     sub.graph.input.append(points)
     for name in [weights_name(i) for i in range(len(cfg.layers))] + [rows_name(i) for i in range(1, len(cfg.layers))]:
         sub.graph.input.append(helper.make_tensor_value_info(name, *shapes[name]))
     del sub.graph.value_info[:]
+    onnx.checker.check_model(sub, full_check=True)
+    proto.CopyFrom(sub)
+    return cut
+
+
+def extract_graph(proto, inputs: list, outputs: list, meta: dict):
+    """The part of ``proto``'s graph from ``inputs`` to ``outputs`` (onnx's ``Extractor``) as a model with
+    ``proto``'s IR version, producer, doc string and opsets, and the metadata ``meta`` ({key: str})."""
+    from onnx.utils import Extractor
+    sub = Extractor(proto).extract_model(list(inputs), list(outputs))
     for field in ("ir_version", "producer_name", "producer_version", "doc_string"):
         setattr(sub, field, getattr(proto, field))
     del sub.opset_import[:]
     sub.opset_import.extend(proto.opset_import)
-    meta["equipose_format"] = "3"
+    del sub.metadata_props[:]
     for k, v in meta.items():
         sub.metadata_props.add(key=k, value=v)
-    onnx.checker.check_model(sub, full_check=True)
-    proto.CopyFrom(sub)
-    return cut
+    return sub
 
 
 def rewrite_model(proto, *, kernel_inputs: bool = True) -> dict:

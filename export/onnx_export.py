@@ -31,7 +31,7 @@ import numpy as np
 from equipose.core.errors import ConfigError, ModelFormatError
 from equipose.core.metadata import encode_metadata
 from equipose.core.neighbourhoods import input_name, nearest_neighbourhoods, neighbourhood_specs
-from equipose.export.graph_rewrite import rewrite_model
+from equipose.export.graph_rewrite import extract_graph, rewrite_model
 from equipose.models.model_io import read_model_file, write_model_file
 from equipose.runtime.session import GRAPH_OUTPUTS as OUTPUT_NAMES, INPUT_NAME, SCORES, GraphIO
 
@@ -330,7 +330,6 @@ def upgrade_model_file(path, out=None) -> pathlib.Path:
 
     import onnx
     from onnx import TensorProto, helper
-    from onnx.utils import Extractor
 
     from equipose.core.presets import ModelConfig
 
@@ -352,14 +351,8 @@ def upgrade_model_file(path, out=None) -> pathlib.Path:
         for sp in specs:
             proto.graph.input.append(helper.make_tensor_value_info(input_name(sp), TensorProto.INT64,
                                                                    ["batch", sp.centres, sp.k]))
-        sub = Extractor(proto).extract_model([INPUT_NAME] + [input_name(sp) for sp in specs], list(OUTPUT_NAMES))
-        for field in ("ir_version", "producer_name", "producer_version", "doc_string"):
-            setattr(sub, field, getattr(proto, field))
-        del sub.opset_import[:]
-        sub.opset_import.extend(proto.opset_import)
         meta["equipose_format"] = "2"
-        for k, v in meta.items():
-            sub.metadata_props.add(key=k, value=v)
+        sub = extract_graph(proto, [INPUT_NAME] + [input_name(sp) for sp in specs], OUTPUT_NAMES, meta)
         onnx.checker.check_model(sub, full_check=True)
         proto = sub
     write_model_file(proto, out)
