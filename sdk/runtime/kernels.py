@@ -6,7 +6,8 @@ first process after an install compiles them all (30–60 s on a 2-core machine)
 timings stay those of the steady state.
 
 Kernels: ICP and nearest neighbours (``equipose.core.icp``, ``equipose.core.nearest``), the network's
-neighbourhoods and hypothesis scores (``equipose.core.neighbourhoods``, ``equipose.core.scores``), farthest-point sampling
+neighbourhoods, kernel inputs and hypothesis scores (``equipose.core.neighbourhoods``, ``equipose.core.kernel_weights``,
+``equipose.core.scores``), farthest-point sampling
 (``equipose.core.geometry``), RANSAC plane scoring (``equipose.preprocess.plane``), the organized outlier filter
 (``equipose.preprocess.crop``), the mirror plane of the frame priors (``equipose.runtime.frame_priors``).
 """
@@ -31,7 +32,9 @@ def load_kernels() -> float:
         return 0.0
     from equipose.core.geometry import farthest_point_order
     from equipose.core.icp import icp_multi
-    from equipose.core.neighbourhoods import NeighbourhoodSpec, nearest_neighbourhoods
+    from equipose.core.kernel_weights import kernel_inputs
+    from equipose.core.neighbourhoods import NeighbourhoodSpec, nearest_neighbourhoods, neighbourhood_specs, neighbourhoods
+    from equipose.core.presets import LayerSpec
     from equipose.core.neighbours import NearestNeighbours
     from equipose.core.scores import hypothesis_scores
     from equipose.preprocess.crop import organized_outlier_mask
@@ -49,6 +52,9 @@ def load_kernels() -> float:
     farthest_point_order(x, 8)
     hypothesis_scores(x[None], x[None], np.eye(3)[None, None], np.zeros((1, 1, 3)), bidirectional=True)
     nearest_neighbourhoods(x[None], NeighbourhoodSpec(support=40, centres=8, k=4, ordered=True))
+    layers = (LayerSpec(1, 4, 40, 8, 0.5, 0.1, 0.3, 4), LayerSpec(4, 4, 8, 8, 0.5, 0.1, 0.3, 4))
+    x32 = x[None].astype(np.float32)
+    kernel_inputs(x32, layers, neighbourhoods(x32, neighbourhood_specs(layers)))
     fit_plane_ransac(np.c_[x[:, :2], np.zeros(len(x))])                        # a plane: the refit runs too
     grid = np.arange(16)
     organized_outlier_mask(rng.normal(size=(16, 3)), grid // 4, grid % 4)
