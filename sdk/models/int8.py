@@ -3,9 +3,9 @@
 Convention:
     ``X.onnx`` (fp32) → ``X.int8.onnx`` in the same folder, or in the user cache when that folder is read-only
     (``$EQUIPOSE_CACHE/models/<first 16 hex of the fp32 file's SHA-256>/``, ``$EQUIPOSE_CACHE`` default
-    ``~/.cache/equipose``). Input and output are the fp32
-    contract graph; only the feature MatMul/Gemm weights become int8, per output channel (activations are quantized
-    per call, no calibration data); the coordinate MatMuls (inner size ≤ 8) stay fp32.
+    ``~/.cache/equipose``). Input and output are the fp32 contract graph; only the feature MatMul/Gemm weights
+    become int8, per output channel (activations are quantized per call, no calibration data); the coordinate
+    MatMuls (inner size ≤ 8) stay fp32.
 
 Metadata: the int8 file carries the fp32 file's entries, with ``precision = int8``, ``int8_source`` = the SHA-256 of
 the fp32 file it was built from, and the entries that belong to the int8 network alone (its own metrics, its own
