@@ -26,6 +26,7 @@ import logging
 import os
 import pathlib
 import tempfile
+import time
 
 from equipose.core.errors import ConfigError, ModelFormatError
 from equipose.models.model_io import write_model_file
@@ -37,6 +38,8 @@ INT8_SUFFIX = ".int8.onnx"
 OVERRIDES_KEY = "int8_overrides"     # fp32 metadata: {key: metadata string} that the int8 copy carries instead
 SOURCE_KEY = "int8_source"           # int8 metadata: SHA-256 (hex) of the fp32 file it was built from
 GEOMETRY_MAX_INNER = 8               # MatMuls with a constant B of inner size ≤ this (xyz · kernel frames) stay fp32
+
+_log = logging.getLogger("equipose")
 
 
 def int8_path_for(path) -> pathlib.Path:
@@ -172,4 +175,7 @@ def ensure_int8(fp32_path) -> pathlib.Path:
     target = beside if writable else cache_dir() / sha[:16] / beside.name
     if target.is_file() and _source_of(target) == sha:
         return target
-    return quantize_int8(fp32_path, target)
+    t0 = time.perf_counter()
+    out = quantize_int8(fp32_path, target)
+    _log.info("built the int8 copy %s from %s in %.1f s (once)", out, fp32_path.name, time.perf_counter() - t0)
+    return out
