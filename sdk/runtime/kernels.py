@@ -33,7 +33,8 @@ def load_kernels() -> float:
     from equipose.core.geometry import farthest_point_order
     from equipose.core.icp import icp_multi
     from equipose.core.kernel_weights import kernel_inputs
-    from equipose.core.neighbourhoods import NeighbourhoodSpec, nearest_neighbourhoods, neighbourhood_specs, neighbourhoods
+    from equipose.core.neighbourhoods import (NeighbourhoodSpec, nearest_neighbourhoods, neighbourhood_specs,
+                                              neighbourhoods)
     from equipose.core.presets import LayerSpec
     from equipose.core.neighbours import NearestNeighbours
     from equipose.core.scores import hypothesis_scores
