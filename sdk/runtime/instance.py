@@ -5,15 +5,16 @@ Convention:
     ``p_cam = R · q + t`` (metres), so ``PoseResult.rotation`` / ``translation`` are the CAD model's pose; no category
     calibration and no symmetry are applied.
 
-How: the network is run once on the model points (centred, scaled to model units) to express them in its learned
-frame, ``y = A · q / s + b`` (A = R_cᵀ, b = −R_cᵀ (c_q / s + t_c) from its best hypothesis (R_c, t_c)). For an
-observation, the network's hypotheses (R_i, t_i) map learned frame → observation, ``x ≈ R_i y + t_i``; all 60 get
-``COARSE_ITERS`` ICP steps against ``y``, the ``k`` best of those are refined to convergence and re-ranked by residual
-(observation → model), and the winner is composed back:
-``R = R_i A``, ``t = s (R_i b + t_i) + c``. An equivariant network gives the same composed seeds whatever the CAD
-frame is, so a category model is a seed generator for any object; ICP on the true geometry gives the precision.
-Iterations: 50 by default (a start stops early once its pairs repeat; the choice is measured in
-docs/results/models/README.md, instance-level mode).
+How: the network is run once on the model points (centred, scaled to model units) to express them in its learned frame,
+``y = A · q / s + b`` (A = R_cᵀ, b = −R_cᵀ (c_q / s + t_c) from its best hypothesis (R_c, t_c)). For an observation, the
+network's hypotheses (R_i, t_i) map learned frame → observation, ``x ≈ R_i y + t_i``; coarse to fine, all 60 get
+``COARSE_ITERS`` ICP steps (``COARSE_POINTS`` of the observation against the first ``SUB_TEMPLATE_POINTS`` of the
+FPS-ordered template: a dense product), the ``k`` best of those are refined to convergence against that part of the
+template and the ``FINE_K`` best of those again against the whole template, re-ranked by residual (observation → model),
+and the winner is composed back: ``R = R_i A``, ``t = s (R_i b + t_i) + c``. An equivariant network gives the same
+composed seeds whatever the CAD frame is, so a category model is a seed generator for any object; ICP on the true
+geometry gives the precision. Iterations: 50 by default (a start stops early once its pairs repeat; the choice is
+measured in docs/results/models/README.md, instance-level mode).
 """
 from __future__ import annotations
 
@@ -25,11 +26,15 @@ from equipose.core.errors import ConfigError
 from equipose.core.geometry import farthest_point_order
 from equipose.preprocess import check_points, prepare_points
 
-__all__ = ["InstanceModel", "build_instance_model", "INSTANCE_ITERS", "turned_fits", "undecided_turn", "better_turn"]
+__all__ = ["InstanceModel", "build_instance_model", "INSTANCE_ITERS", "COARSE_ITERS", "COARSE_POINTS",
+           "SUB_TEMPLATE_POINTS", "FINE_K", "turned_fits", "undecided_turn", "better_turn"]
 
 TEMPLATE_POINTS = 1024          # model points kept (FPS) for ICP
-COARSE_ITERS = 3                # ICP steps for every hypothesis before the k best are refined
-INSTANCE_ITERS = 50             # ICP iterations of the k best (default of PoseEstimator(instance_iters=...))
+COARSE_ITERS = 3                # ICP steps for every hypothesis before the k best are refined ...
+COARSE_POINTS = 128             # ... on this many observed points (FPS prefix of the model input)
+SUB_TEMPLATE_POINTS = 256       # model points (FPS prefix) of the coarse steps and of the k best's convergence
+FINE_K = 3                      # hypotheses converged again on the whole template
+INSTANCE_ITERS = 50             # ICP iterations to convergence (default of PoseEstimator(instance_iters=...))
 TURN_ANGLES_DEG = (60.0, 120.0, 180.0, 240.0, 300.0)   # turns of the chosen pose tried about each principal axis
 TURN_ITERS = 6                  # ICP steps of each turned start
 TURN_TEMPLATE_POINTS = 256      # template points of the turn test (a dense product instead of a k-d tree)

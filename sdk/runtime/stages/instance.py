@@ -1,10 +1,11 @@
-"""Stage ``instance`` (instance-level mode, ``PoseEstimator(model_points=...)``): the object's own model points take
-the place of the predicted shape (``equipose.runtime.instance``): every hypothesis gets a few ICP steps against them,
-the ``k`` best go on to convergence, and the winner is composed back into the CAD frame. The winner's turns about the
-model's principal axes get a few ICP steps (``equipose.runtime.instance.turned_fits``): one that fits better is
-converged and takes the winner's place when it ends better (``better_turn``: the hypotheses can all miss the true
-pose's basin), and ``ambiguous`` is also set when one fits within the flip margin (10 %): a turn about a symmetry
-axis that the view cannot decide (``undecided_turn``).
+"""Stage ``instance`` (instance-level mode, ``PoseEstimator(model_points=...)``): the object's own model points take the
+place of the predicted shape (``equipose.runtime.instance``), coarse to fine: every hypothesis gets a few ICP steps
+(part of the view against part of the model), the ``k`` best go on to convergence against part of the model, the
+``FINE_K`` best of those against all of it, and the winner is composed back into the CAD frame. The winner's turns
+about the model's principal axes get a few ICP steps (``equipose.runtime.instance.turned_fits``): one that fits better
+is converged and takes the winner's place when it ends better (``better_turn``: the hypotheses can all miss the true
+pose's basin), and ``ambiguous`` is also set when one fits within the flip margin (10 %): a turn about a symmetry axis
+that the view cannot decide (``undecided_turn``).
 
 Convention: model units, centred camera frame; the result is the CAD model's pose (camera ← CAD), no symmetry.
 """
@@ -13,7 +14,8 @@ from __future__ import annotations
 import numpy as np
 
 from equipose.runtime.hypotheses import AMBIGUOUS_MARGIN, select_hypothesis
-from equipose.runtime.instance import COARSE_ITERS, better_turn, turned_fits, undecided_turn
+from equipose.runtime.instance import (COARSE_ITERS, COARSE_POINTS, FINE_K, SUB_TEMPLATE_POINTS, better_turn,
+                                       turned_fits, undecided_turn)
 from equipose.runtime.refine import refine_hypotheses
 from equipose.runtime.stage import ObjectState, Stage, register_stage
 
@@ -38,10 +40,12 @@ class InstanceStage(Stage):
 
     def run(self, state: ObjectState) -> None:
         inst = self.model
-        R, t, s = refine_hypotheses(state.points, inst.template, state.R, state.t, state.scores, k=len(state.scores),
-                                    iters=COARSE_ITERS, bidirectional=False)
-        R, t, s = refine_hypotheses(state.points, inst.template, R, t, s, k=inst.k, iters=inst.iters,
+        x, Y = state.points, inst.template                                      # FPS-ordered: prefixes are even
+        R, t, s = refine_hypotheses(x[:COARSE_POINTS], Y[:SUB_TEMPLATE_POINTS], state.R, state.t, state.scores,
+                                    k=len(state.scores), iters=COARSE_ITERS, bidirectional=False)
+        R, t, s = refine_hypotheses(x, Y[:SUB_TEMPLATE_POINTS], R, t, s, k=inst.k, iters=inst.iters,
                                     bidirectional=False)
+        R, t, s = refine_hypotheses(x, Y, R, t, s, k=min(FINE_K, inst.k), iters=inst.iters, bidirectional=False)
         R_obj = np.einsum("aij,jk->aik", R, inst.A)                             # [60, 3, 3] CAD → camera
         t_obj = np.einsum("aij,j->ai", R, inst.b) + t                           # [60, 3] model units
         sel = select_hypothesis(R_obj, t_obj, s, symmetry="none", top_k=state.top_k, prefer=state.prefer,
