@@ -45,7 +45,8 @@ TURN_MIN_DEG = 30.0             # a turned start that ends closer than this to t
 class InstanceModel:
     """A known object in the network's learned frame.
 
-    Attributes: ``points_m`` [M, 3] metres, CAD frame; ``template`` [M', 3] model units, learned frame (FPS subset);
+    Attributes: ``points_m`` [M', 3] metres, CAD frame (an FPS subset of the model points, FPS-ordered); ``template``
+    [M', 3] the same points in model units, learned frame;
     ``A`` [3, 3], ``b`` [3]: CAD (metres / scale) → learned frame; ``k`` hypotheses refined per observation;
     ``iters`` ICP iterations.
     """
@@ -72,7 +73,7 @@ def build_instance_model(est, model_points, *, k: int = 10, iters: int = INSTANC
     R_c = U @ np.diag([1.0, 1.0, np.linalg.det(U @ Vt)]) @ Vt
     A, b = R_c.T, -R_c.T @ (prep.centre_m / est.scale + t_c)
     sub = q[farthest_point_order(q.astype(np.float32), min(TEMPLATE_POINTS, len(q)))]  # [M', 3] m
-    return InstanceModel(points_m=q, template=sub / est.scale @ A.T + b, A=A, b=b, k=k, iters=iters)
+    return InstanceModel(points_m=sub, template=sub / est.scale @ A.T + b, A=A, b=b, k=k, iters=iters)
 
 
 def turned_fits(points: np.ndarray, template: np.ndarray, R: np.ndarray, t: np.ndarray) -> tuple:

@@ -64,4 +64,4 @@ class InstanceStage(Stage):
         state.R, state.t, state.scores, state.symmetry = R_obj, t_obj, s, "none"
         state.selection, state.confidence, state.ambiguous = sel, sel.confidence, sel.ambiguous
         state.set_pose(U @ np.diag([1.0, 1.0, np.linalg.det(U @ Vt)]) @ Vt, t_obj[i])
-        state.canonical_category = inst.points_m / self.scale                   # [M, 3] CAD frame, model units
+        state.canonical_category = inst.points_m / self.scale                   # [M', 3] CAD frame, model units
