@@ -9,7 +9,8 @@ Kernels: ICP and nearest neighbours (``equipose.core.icp``, ``equipose.core.near
 neighbourhoods, kernel inputs and hypothesis scores (``equipose.core.neighbourhoods``, ``equipose.core.kernel_weights``,
 ``equipose.core.scores``), farthest-point sampling
 (``equipose.core.geometry``), RANSAC plane scoring (``equipose.preprocess.plane``), the organized outlier filter
-(``equipose.preprocess.crop``), the mirror plane of the frame priors (``equipose.runtime.frame_priors``).
+(``equipose.preprocess.crop``), the mirror plane of the frame priors (``equipose.runtime.frame_priors``), the point
+normals of the cylinder stage (``equipose.runtime.cylinder``).
 """
 from __future__ import annotations
 
@@ -40,6 +41,7 @@ def load_kernels() -> float:
     from equipose.core.scores import hypothesis_scores
     from equipose.preprocess.crop import organized_outlier_mask
     from equipose.preprocess.plane import fit_plane_ransac
+    from equipose.runtime.cylinder import point_normals
     from equipose.runtime.frame_priors import mirror_plane
 
     t0 = time.perf_counter()
@@ -60,6 +62,7 @@ def load_kernels() -> float:
     grid = np.arange(16)
     organized_outlier_mask(rng.normal(size=(16, 3)), grid // 4, grid % 4)
     mirror_plane(x, [1.0, 0.0, 0.0])
+    point_normals(x)
     _loaded_s = time.perf_counter() - t0
     if _loaded_s > 2.0:
         _log.info("compiled the geometry kernels in %.0f s (cached for later runs)", _loaded_s)
