@@ -18,6 +18,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 
 from equipose.core.errors import InvalidPointsError
 
@@ -52,46 +53,78 @@ class HandleFit:
 def fit_handle(points: np.ndarray, *, bands: int = 6, bins: int = 36, min_share: float = 0.45,
                min_mass: float = 0.008, centre=None) -> HandleFit:
     """Handle azimuth of an upright cup cloud [N, 3] (see the module docstring). ``centre``: a first guess (x, y) of
-    the body axis (default: the points' median; a posed partial view passes its origin)."""
-    p = np.asarray(points, np.float64)
+    the body axis (default: the points' median; a posed partial view passes its origin). One compiled pass."""
+    p = np.ascontiguousarray(points, np.float64)
     if p.ndim != 2 or p.shape[1] != 3 or len(p) < 50:
         raise InvalidPointsError(f"fit_handle needs an [N ≥ 50, 3] cloud, got shape {p.shape}")
-    band = _band_of(p[:, 2], _height_bands(p[:, 2], bands))                         # [N] height band
-    counts = np.bincount(band, minlength=bands)                                      # [bands]
-    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])                           # [bands] first of each, sorted
-
-    def band_radius(r):                                                              # [N] median radius of its band
-        rs = r[np.lexsort((r, band))]                                                # by band, then radius
-        hi = np.minimum(starts + counts // 2, len(r) - 1)                            # upper middle of each band
-        lo = np.where(counts % 2 == 1, hi, np.maximum(hi - 1, 0))                    # lower middle (even counts)
-        med = np.where(counts > 0, 0.5 * (rs[lo] + rs[hi]), np.median(r))            # [bands] = np.median per band
-        return med[band]
-
     c = np.median(p[:, :2], axis=0) if centre is None else np.asarray(centre, np.float64).reshape(2)
-    for _ in range(4):                                                               # circle fit on the outer wall
-        r = np.linalg.norm(p[:, :2] - c, axis=1)                                     # [N]
-        rb = band_radius(r)
-        body = (r < 1.1 * rb) & (r > 0.7 * rb)                                       # not the handle, nor the inside
-        if body.sum() < 10:
+    edges = _height_bands(p[:, 2], bands)                                          # [bands + 1]
+    azimuth, share, mass, cx, cy = _fit_handle(p, edges, int(bins), float(c[0]), float(c[1]))
+    return HandleFit(azimuth, share, mass, (cx, cy), share >= min_share and mass >= min_mass)
+
+
+@njit(cache=True)
+def _band_radius(r, band, bands):
+    """[N] the median of ``r`` [N] over each point's height band (an empty band: the median of all)."""
+    med = np.empty(bands)
+    for k in range(bands):
+        sel = r[band == k]
+        med[k] = np.median(sel) if len(sel) else np.median(r)
+    return med[band]
+
+
+@njit(cache=True)
+def _fit_handle(p, edges, bins, cx, cy) -> tuple:
+    """(azimuth, share, mass, centre x, centre y) of ``fit_handle`` for the cloud ``p`` [N, 3] float64 with height
+    band ``edges`` [bands + 1] (numpy's quantiles: numba's may differ in the last bit, which moves points between
+    bands)."""
+    bands = len(edges) - 1
+    band = np.minimum(np.maximum(np.searchsorted(edges, p[:, 2]) - 1, 0), bands - 1)   # [N]
+    N = len(p)
+    r = np.empty(N)
+    for _ in range(4):                                                         # circle fit on the outer wall
+        for i in range(N):
+            r[i] = np.sqrt((p[i, 0] - cx) ** 2 + (p[i, 1] - cy) ** 2)
+        rb = _band_radius(r, band, bands)
+        body = (r < 1.1 * rb) & (r > 0.7 * rb)                               # not the handle, nor the inside
+        m = int(body.sum())
+        if m < 10:
             break
-        A = np.c_[2.0 * p[body, :2], np.ones(body.sum())]                            # x² + y² = 2cx·x + 2cy·y + k
-        c = np.linalg.lstsq(A, (p[body, :2] ** 2).sum(1), rcond=None)[0][:2]
-    d = p[:, :2] - c                                                                 # [N, 2]
-    r = np.linalg.norm(d, axis=1)
-    excess = np.maximum(r / np.maximum(band_radius(r), 1e-12) - 1.15, 0.0)           # [N]
-    az = np.arctan2(d[:, 1], d[:, 0])                                                # [N] radians
-    k = ((az + np.pi) / (2 * np.pi) * bins).astype(int) % bins
-    hist = np.bincount(k, weights=excess, minlength=bins)                            # [bins]
-    window = hist + np.roll(hist, 1) + np.roll(hist, -1)                             # 30° windows
-    peak = int(window.argmax())
-    total = float(hist.sum())
+        A, y = np.empty((m, 3)), np.empty(m)                                   # x² + y² = 2cx·x + 2cy·y + k
+        j = 0
+        for i in range(N):
+            if body[i]:
+                A[j, 0], A[j, 1], A[j, 2] = 2.0 * p[i, 0], 2.0 * p[i, 1], 1.0
+                y[j] = p[i, 0] ** 2 + p[i, 1] ** 2
+                j += 1
+        sol = np.linalg.lstsq(A, y)[0]
+        cx, cy = sol[0], sol[1]
+    az = np.empty(N)
+    for i in range(N):
+        dx, dy = p[i, 0] - cx, p[i, 1] - cy
+        r[i] = np.sqrt(dx * dx + dy * dy)
+        az[i] = np.arctan2(dy, dx)                                             # radians
+    excess = np.maximum(r / np.maximum(_band_radius(r, band, bands), 1e-12) - 1.15, 0.0)   # [N]
+    hist = np.zeros(bins)
+    for i in range(N):
+        hist[int((az[i] + np.pi) / (2 * np.pi) * bins) % bins] += excess[i]
+    peak, best = 0, -1.0
+    for b in range(bins):                                                      # 30° windows
+        w = hist[b] + hist[(b - 1) % bins] + hist[(b + 1) % bins]
+        if w > best:
+            peak, best = b, w
+    total = hist.sum()
     centre_az = -np.pi + (peak + 0.5) * 2 * np.pi / bins
-    near = np.abs(np.angle(np.exp(1j * (az - centre_az)))) < np.radians(30)
-    w = excess * near
-    azimuth = float(np.arctan2((w * np.sin(az)).sum(), (w * np.cos(az)).sum())) if w.sum() > 0 else 0.0
-    share = float(window[peak] / total) if total > 0 else 0.0
-    mass = total / len(p)
-    return HandleFit(azimuth, share, mass, (float(c[0]), float(c[1])), share >= min_share and mass >= min_mass)
+    ws, wc, wsum = 0.0, 0.0, 0.0
+    for i in range(N):
+        delta = np.arctan2(np.sin(az[i] - centre_az), np.cos(az[i] - centre_az))
+        if abs(delta) < np.radians(30.0):
+            ws += excess[i] * np.sin(az[i])
+            wc += excess[i] * np.cos(az[i])
+            wsum += excess[i]
+    azimuth = np.arctan2(ws, wc) if wsum > 0 else 0.0
+    share = best / total if total > 0 else 0.0
+    return azimuth, share, total / N, cx, cy
 
 
 def turn_about_z(angle: float) -> np.ndarray:

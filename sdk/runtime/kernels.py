@@ -10,7 +10,7 @@ neighbourhoods, kernel inputs and hypothesis scores (``equipose.core.neighbourho
 ``equipose.core.scores``), farthest-point sampling
 (``equipose.core.geometry``), RANSAC plane scoring (``equipose.preprocess.plane``), the organized outlier filter
 (``equipose.preprocess.crop``), the mirror plane of the frame priors (``equipose.runtime.frame_priors``), the point
-normals of the cylinder stage (``equipose.runtime.cylinder``).
+normals of the cylinder stage (``equipose.runtime.cylinder``), the handle fit (``equipose.core.handles``).
 """
 from __future__ import annotations
 
@@ -32,6 +32,7 @@ def load_kernels() -> float:
     if _loaded_s is not None:
         return 0.0
     from equipose.core.geometry import farthest_point_order
+    from equipose.core.handles import fit_handle
     from equipose.core.icp import icp_multi
     from equipose.core.kernel_weights import kernel_inputs
     from equipose.core.neighbourhoods import (NeighbourhoodSpec, nearest_neighbourhoods, neighbourhood_specs,
@@ -63,6 +64,7 @@ def load_kernels() -> float:
     organized_outlier_mask(rng.normal(size=(16, 3)), grid // 4, grid % 4)
     mirror_plane(x, [1.0, 0.0, 0.0])
     point_normals(x)
+    fit_handle(rng.normal(size=(60, 3)))
     _loaded_s = time.perf_counter() - t0
     if _loaded_s > 2.0:
         _log.info("compiled the geometry kernels in %.0f s (cached for later runs)", _loaded_s)
