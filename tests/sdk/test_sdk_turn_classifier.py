@@ -13,7 +13,7 @@ from equipose.core.geometry import rotation_angle_deg
 from equipose.core.metadata import encode_turn_classifier
 from equipose.runtime.hypotheses import HALF_TURNS
 from equipose.runtime.stages.turn import TurnStage
-from equipose.runtime.turn_classifier import score_sets, turned_sets
+from equipose.runtime.turn_classifier import TurnScorer, score_sets, turned_sets
 from equipose.testing import posed_state
 
 
@@ -51,6 +51,18 @@ def test_numpy_scores_match_the_torch_network(rng):
     point, head = net.layers()
     tc = decode_metadata_value(encode_turn_classifier(point, head, "xyz", 0.0, 1.0))
     np.testing.assert_allclose(score_sets(tc["weights"], sets), expected, rtol=1e-4, atol=1e-5)
+
+
+@pytest.mark.parametrize("threads", [1, 2])
+def test_onnxruntime_scorer_matches_the_numpy_scores(rng, threads):
+    point = [(rng.normal(size=(16, 3)).astype(np.float32), rng.normal(size=16).astype(np.float32)),
+             (rng.normal(size=(24, 16)).astype(np.float32), rng.normal(size=24).astype(np.float32))]
+    head = [(rng.normal(size=(8, 48)).astype(np.float32), rng.normal(size=8).astype(np.float32)),
+            (rng.normal(size=(1, 8)).astype(np.float32), rng.normal(size=1).astype(np.float32))]
+    weights = {"point": point, "head": head}
+    sets = rng.normal(size=(4, 100, 3)).astype(np.float32)
+    expected = score_sets(weights, sets)                                        # [4]
+    np.testing.assert_allclose(TurnScorer(weights, threads)(sets), expected, rtol=1e-5, atol=1e-5)
 
 
 def test_turn_stage_turns_back_a_pose_the_scorer_finds_turned(rng):

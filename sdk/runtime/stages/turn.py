@@ -10,7 +10,7 @@ from __future__ import annotations
 from equipose.runtime.hypotheses import HALF_TURNS
 from equipose.runtime.stage import ObjectState, Stage, register_stage
 from equipose.core.errors import ConfigError
-from equipose.runtime.turn_classifier import TURN_POINTS, turn_scores
+from equipose.runtime.turn_classifier import TURN_POINTS, TurnScorer, turned_sets
 
 __all__ = ["TurnStage"]
 
@@ -22,8 +22,9 @@ class TurnStage(Stage):
     after = "flip"
     options = {"points": TURN_POINTS}
 
-    def __init__(self, turn: dict, points: int = TURN_POINTS):
+    def __init__(self, turn: dict, points: int = TURN_POINTS, threads: int = 1):
         self.turn, self.points = turn, int(points)
+        self.scorer = TurnScorer(turn["weights"], threads)                      # the scorer's onnxruntime graph
 
     @classmethod
     def build(cls, spec, options, context):
@@ -31,7 +32,7 @@ class TurnStage(Stage):
         n = options["points"]
         if isinstance(n, bool) or not isinstance(n, int) or n < 16:
             raise ConfigError(f"turn points must be an int ≥ 16, got {n!r}")
-        return None if tc is None else cls(tc, n)
+        return None if tc is None else cls(tc, n, int(context.get("threads") or 1))
 
     def describe(self) -> dict:
         return {"axes": list(self.turn["axes"]), "margin": self.turn["margin"], "points": self.points}
@@ -40,8 +41,7 @@ class TurnStage(Stage):
         axes = [a for a in self.turn["axes"] if state.up is None or a == "z"]  # the up prior holds x and y
         if not axes:
             return
-        s = turn_scores(self.turn["weights"], state.points, state.rotation, state.translation, axes,
-                        self.points)                                            # [1 + A]
+        s = self.scorer(turned_sets(state.points, state.rotation, state.translation, axes, self.points))  # [1 + A]
         k = int(s[1:].argmax())
         if s[1 + k] - s[0] > self.turn["margin"]:
             state.set_pose(state.rotation @ HALF_TURNS[axes[k]])
