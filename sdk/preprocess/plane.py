@@ -5,6 +5,7 @@ oriented so the camera origin has positive signed distance.
 """
 from __future__ import annotations
 
+import functools
 import math
 
 import numpy as np
@@ -60,6 +61,15 @@ def _inlier_moments(points, n, d, threshold) -> tuple:
     return count, c, S
 
 
+@functools.lru_cache(maxsize=32)
+def _triples(P: int, iterations: int, seed) -> np.ndarray:
+    """[iterations, 3] random point indices below ``P`` from ``seed`` (read-only; the same triples every call: a
+    camera's frames keep nearly the same number of valid lattice points)."""
+    tri = np.random.default_rng(seed).integers(0, P, size=(iterations, 3))
+    tri.flags.writeable = False
+    return tri
+
+
 def fit_plane_ransac(points: np.ndarray, threshold: float = 0.01, iterations: int = 200, seed: int = 0,
                      confidence: float = 0.999, chunk: int = 32):
     """RANSAC plane fit with a least-squares refit on the inliers.
@@ -74,10 +84,11 @@ def fit_plane_ransac(points: np.ndarray, threshold: float = 0.01, iterations: in
     P = len(points)
     if P < 3:
         raise TooFewPointsError(f"plane fit needs ≥ 3 points, got {P}")
-    rng = np.random.default_rng(seed)
-    tri = rng.integers(0, P, size=(iterations, 3))                              # [I, 3]
+    tri = _triples(P, int(iterations), seed)                                    # [I, 3]
     a, b, c = points[tri[:, 0]], points[tri[:, 1]], points[tri[:, 2]]           # [I, 3] each
-    normals = np.cross(b - a, c - a)                                            # [I, 3]
+    u, v = b - a, c - a                                                         # [I, 3] each
+    normals = np.stack([u[:, 1] * v[:, 2] - u[:, 2] * v[:, 1], u[:, 2] * v[:, 0] - u[:, 0] * v[:, 2],
+                        u[:, 0] * v[:, 1] - u[:, 1] * v[:, 0]], 1)             # [I, 3] u × v
     norms = np.linalg.norm(normals, axis=1)                                     # [I]
     ok = norms > 1e-9
     normals, a = normals[ok] / norms[ok, None], a[ok]
