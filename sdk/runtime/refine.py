@@ -51,7 +51,9 @@ def rank_refined(scores: np.ndarray, top: np.ndarray, residuals: np.ndarray) -> 
     s = np.asarray(scores, np.float64)
     out = np.empty_like(s)
     out[top] = residuals
-    rest = np.setdiff1d(np.arange(len(s)), top)
+    others = np.ones(len(s), bool)
+    others[top] = False
+    rest = np.flatnonzero(others)                                              # ascending, as setdiff1d gave
     if len(rest):
         out[rest] = residuals.max() + 1e-9 + (s[rest] - s[rest].min())
     return out
