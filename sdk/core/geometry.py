@@ -12,7 +12,7 @@ from numba import njit
 from scipy.spatial.transform import Rotation
 
 __all__ = ["quaternion_to_matrix", "matrix_to_quaternion", "rotation_angle_deg", "axis_angle_deg", "backproject",
-           "farthest_point_order", "farthest_point_orders", "random_rotations", "rotation_between", "nearest_rotation"]
+           "farthest_point_order", "farthest_point_orders", "random_rotations", "rotation_between", "nearest_rotation", "cross"]
 
 
 def quaternion_to_matrix(q) -> np.ndarray:
@@ -140,6 +140,14 @@ def random_rotations(n: int, seed=None) -> np.ndarray:
     return Rotation.random(n, random_state=seed).as_matrix()
 
 
+def cross(a, b) -> np.ndarray:
+    """``a × b`` over the last axis ([..., 3], broadcast): numpy's ``np.cross`` with the same arithmetic, without its
+    per-call overhead (about 50 µs per call on 3-vectors here, against 3 µs)."""
+    a, b = np.asarray(a), np.asarray(b)
+    a0, a1, a2, b0, b1, b2 = a[..., 0], a[..., 1], a[..., 2], b[..., 0], b[..., 1], b[..., 2]
+    return np.stack(np.broadcast_arrays(a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0), -1)
+
+
 def rotation_between(a, b) -> np.ndarray:
     """Smallest rotation taking direction ``a`` onto direction ``b`` (any lengths > 0): [3] and [3] → [3, 3], or
     broadcast over leading axes ([..., 3] → [..., 3, 3]); for opposite directions, the half turn about an axis
@@ -148,7 +156,7 @@ def rotation_between(a, b) -> np.ndarray:
     b = np.asarray(b, np.float64)
     a, b = np.broadcast_arrays(a / np.linalg.norm(a, axis=-1, keepdims=True),
                                b / np.linalg.norm(b, axis=-1, keepdims=True))           # [..., 3] unit
-    v, c = np.cross(a, b), np.einsum("...i,...i->...", a, b)                           # [..., 3], [...]
+    v, c = cross(a, b), np.einsum("...i,...i->...", a, b)                           # [..., 3], [...]
     V = np.zeros(v.shape + (3,))
     V[..., 0, 1], V[..., 0, 2], V[..., 1, 2] = -v[..., 2], v[..., 1], -v[..., 0]
     V = V - np.swapaxes(V, -1, -2)                                                      # [..., 3, 3] cross matrices
@@ -156,7 +164,7 @@ def rotation_between(a, b) -> np.ndarray:
     opposite = c < -1.0 + 1e-9
     if np.any(opposite):                                                                # half turns: rare
         ao = a[opposite]                                                                # [K, 3]
-        p = np.cross(ao, np.eye(3)[np.argmin(np.abs(ao), axis=-1)])
+        p = cross(ao, np.eye(3)[np.argmin(np.abs(ao), axis=-1)])
         p /= np.linalg.norm(p, axis=-1, keepdims=True)
         R[opposite] = 2.0 * np.einsum("ki,kj->kij", p, p) - np.eye(3)
     return R

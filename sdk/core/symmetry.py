@@ -11,6 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from equipose.core.errors import MetadataError
+from equipose.core.geometry import cross
 
 __all__ = ["HALF_TURNS", "parse_symmetry", "symmetric_distance_deg", "canonicalise_rotation"]
 
@@ -87,5 +88,5 @@ def canonicalise_rotation(R, symmetry: str = "none", reference=(1.0, 0.0, 0.0)) 
         v = ref - (ref @ a) * a
     v /= np.linalg.norm(v)
     out = np.zeros((3, 3))
-    out[:, axis], out[:, i], out[:, j] = a, v, np.cross(a, v)
+    out[:, axis], out[:, i], out[:, j] = a, v, cross(a, v)
     return out

@@ -12,6 +12,7 @@ import numpy as np
 from numba import njit
 
 from equipose.core.errors import TooFewPointsError
+from equipose.core.geometry import cross
 
 __all__ = ["fit_plane_ransac", "find_support_plane"]
 
@@ -86,9 +87,7 @@ def fit_plane_ransac(points: np.ndarray, threshold: float = 0.01, iterations: in
         raise TooFewPointsError(f"plane fit needs ≥ 3 points, got {P}")
     tri = _triples(P, int(iterations), seed)                                    # [I, 3]
     a, b, c = points[tri[:, 0]], points[tri[:, 1]], points[tri[:, 2]]           # [I, 3] each
-    u, v = b - a, c - a                                                         # [I, 3] each
-    normals = np.stack([u[:, 1] * v[:, 2] - u[:, 2] * v[:, 1], u[:, 2] * v[:, 0] - u[:, 0] * v[:, 2],
-                        u[:, 0] * v[:, 1] - u[:, 1] * v[:, 0]], 1)             # [I, 3] u × v
+    normals = cross(b - a, c - a)                                               # [I, 3]
     norms = np.linalg.norm(normals, axis=1)                                     # [I]
     ok = norms > 1e-9
     normals, a = normals[ok] / norms[ok, None], a[ok]

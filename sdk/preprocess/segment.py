@@ -8,6 +8,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from equipose.core.errors import EmptyDepthError
+from equipose.core.geometry import cross
 from equipose.preprocess.plane import fit_plane_ransac
 from equipose.preprocess.validate import check_intrinsics, depth_to_metres
 
@@ -51,9 +52,9 @@ def auto_masks(depth, K, *, depth_unit="mm", image_size=None, min_depth: float =
     above = (h > min_height) & (h < max_height)                                 # [P]
     if table_hull and inl.sum() >= 3:
         from scipy.spatial import ConvexHull, QhullError
-        e1 = np.cross(n, [1.0, 0.0, 0.0] if abs(n[0]) < 0.9 else [0.0, 1.0, 0.0])
+        e1 = cross(n, [1.0, 0.0, 0.0] if abs(n[0]) < 0.9 else [0.0, 1.0, 0.0])
         e1 /= np.linalg.norm(e1)
-        e2 = np.cross(n, e1)                                                    # (e1, e2) span the plane
+        e2 = cross(n, e1)                                                    # (e1, e2) span the plane
         table2d = sub[inl] @ np.stack([e1, e2], 1)                              # [T, 2]
         try:
             eq = ConvexHull(table2d).equations                                  # [F, 3]: inside ⇔ a·q + b ≤ 0
