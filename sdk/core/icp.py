@@ -9,6 +9,8 @@ Convention:
     trees warm-started from each point's previous partner for large ones.
     Rotation updates: Horn's closed form (the unit quaternion maximising Σ dᵀ R s, the top eigenvector of a
     symmetric 4 × 4 matrix), the same least-squares rotation as Kabsch's SVD and always proper.
+    ``icp_point_to_plane``: the point-to-plane variant against a template with normals (a Gauss–Newton step of the
+    linearised distances along the normals per iteration), which does not creep along flat parts of a surface.
 """
 from __future__ import annotations
 
@@ -21,7 +23,7 @@ from equipose.core.nearest import build_index, make_scratch, nearest_brute, near
 from equipose.core.parallel import run_parts, split_ranges
 from equipose.core.parallel import workers as workers_in_scope
 
-__all__ = ["kabsch", "icp_multi"]
+__all__ = ["kabsch", "icp_multi", "icp_point_to_plane"]
 
 
 def kabsch(src: np.ndarray, dst: np.ndarray) -> tuple:
@@ -206,4 +208,103 @@ def icp_multi(observed: np.ndarray, template: np.ndarray, R0: np.ndarray, t0: np
     parts = split_ranges(J, workers_in_scope() if workers is None else workers) if J else []
     run_parts(_icp_loop, [(x, Y, which[a:b], R[a:b], t[a:b], int(iters), bool(bidirectional), axis, up, res[a:b])
                           for a, b in parts])                                   # in place on views of R, t, res
+    return R, t, res
+
+
+@njit(cache=True, inline="always")
+def _rotation_from_vector(w0, w1, w2, M) -> None:
+    """M [3, 3] (in place) = exp([w]×), the rotation by |w| radians about w (Rodrigues)."""
+    th = np.sqrt(w0 * w0 + w1 * w1 + w2 * w2)
+    a = np.sin(th) / th if th > 1e-12 else 1.0
+    b = (1.0 - np.cos(th)) / (th * th) if th > 1e-12 else 0.5
+    M[0, 0], M[0, 1], M[0, 2] = 1.0 - b * (w1 * w1 + w2 * w2), -a * w2 + b * w0 * w1, a * w1 + b * w0 * w2
+    M[1, 0], M[1, 1], M[1, 2] = a * w2 + b * w0 * w1, 1.0 - b * (w0 * w0 + w2 * w2), -a * w0 + b * w1 * w2
+    M[2, 0], M[2, 1], M[2, 2] = -a * w1 + b * w0 * w2, a * w0 + b * w1 * w2, 1.0 - b * (w0 * w0 + w1 * w1)
+
+
+@njit(cache=True, nogil=True)
+def _icp_plane_loop(x, Y, normals, R, t, iters, tol, res):
+    """Point-to-plane ICP of every start, in place on R [J, 3, 3], t [J, 3], res [J] (see ``icp_point_to_plane``)."""
+    N = x.shape[0]
+    stack, bound, dist, bits = make_scratch(Y.shape[1])
+    pairs = np.empty(N, np.int64)
+    _, soa, centre, tpoints, ids, nodes, split = build_index(Y)
+    tree = tpoints.shape[1] > 0
+    Y0, q, M = Y[0], np.empty(3), np.empty((3, 3))
+    A, b = np.empty((6, 6)), np.empty(6)
+    J6 = np.empty(6)
+    for j in range(R.shape[0]):
+        pairs[:] = -1
+        Rj, tj = R[j], t[j]
+        for it in range(iters + 1):
+            A[:] = 0.0
+            b[:] = 0.0
+            r1 = 0.0
+            for n in range(N):
+                px, py, pz = x[n, 0] - tj[0], x[n, 1] - tj[1], x[n, 2] - tj[2]
+                q[0] = Rj[0, 0] * px + Rj[1, 0] * py + Rj[2, 0] * pz            # Rᵀ(x − t): template frame
+                q[1] = Rj[0, 1] * px + Rj[1, 1] * py + Rj[2, 1] * pz
+                q[2] = Rj[0, 2] * px + Rj[1, 2] * py + Rj[2, 2] * pz
+                if tree:
+                    m = nearest_tree(tpoints, ids, nodes, split, 0, q, pairs[n], stack, bound)
+                else:
+                    m = nearest_brute(soa, centre, 0, q, dist, bits)
+                pairs[n] = m
+                d0, d1, d2 = q[0] - Y0[m, 0], q[1] - Y0[m, 1], q[2] - Y0[m, 2]
+                r1 += d0 * d0 + d1 * d1 + d2 * d2
+                n0, n1, n2 = normals[m, 0], normals[m, 1], normals[m, 2]
+                e = d0 * n0 + d1 * n1 + d2 * n2                                 # distance along the normal
+                J6[0], J6[1], J6[2] = q[1] * n2 - q[2] * n1, q[2] * n0 - q[0] * n2, q[0] * n1 - q[1] * n0
+                J6[3], J6[4], J6[5] = n0, n1, n2                                # ∂e / ∂(ω, v) of q → q + ω × q + v
+                for a in range(6):
+                    b[a] += J6[a] * e
+                    for c in range(a, 6):
+                        A[a, c] += J6[a] * J6[c]
+            res[j] = r1 / N
+            if it == iters:
+                break
+            damp = 1e-9 * (A[0, 0] + A[1, 1] + A[2, 2] + A[3, 3] + A[4, 4] + A[5, 5]) + 1e-15
+            for a in range(6):
+                A[a, a] += damp
+                for c in range(a):
+                    A[a, c] = A[c, a]
+            step = np.linalg.solve(A, -b)                                       # (ω, v) in the template frame
+            if np.sqrt(step[0] ** 2 + step[1] ** 2 + step[2] ** 2) < tol and \
+                    np.sqrt(step[3] ** 2 + step[4] ** 2 + step[5] ** 2) < tol:
+                break                                                           # converged: res is this pose's
+            _rotation_from_vector(step[0], step[1], step[2], M)
+            # q' = M q + v for q = Rᵀ(x − t): R' = R Mᵀ, t' = t − R' v
+            Rn = Rj @ M.T
+            for a in range(3):
+                tj[a] -= Rn[a, 0] * step[3] + Rn[a, 1] * step[4] + Rn[a, 2] * step[5]
+            Rj[:, :] = Rn
+
+
+def icp_point_to_plane(observed: np.ndarray, template: np.ndarray, normals: np.ndarray, R0: np.ndarray,
+                       t0: np.ndarray, iters: int = 20, tol: float = 1e-7, workers: int | None = None) -> tuple:
+    """Point-to-plane ICP from several starts at once (observation → template).
+
+    Convention: ``observed`` [N ≥ 6, 3]; ``template`` [M ≥ 3, 3] with unit ``normals`` [M, 3] (any sign, e.g.
+    ``equipose.core.normals.point_normals``); ``R0`` [J, 3, 3], ``t0`` [J, 3] with x ≈ R y + t. Each iteration pairs
+    every observed point with its nearest template point and takes the Gauss–Newton step (a rotation vector and a
+    translation in the template frame) that minimises the squared distances along the template normals, linearised.
+    A start stops when a step is below ``tol`` (radians, and template units) or after ``iters`` steps. Returns
+    (R [J, 3, 3], t [J, 3], residual [J]) with the residual of the returned pose as ``icp_multi`` reports it (the
+    mean squared point-to-point distance observation → template), so the two rank alike. ``workers``: as in
+    ``icp_multi``.
+    """
+    x = np.ascontiguousarray(observed, np.float64)                             # [N, 3]
+    Y = np.ascontiguousarray(np.asarray(template, np.float64)[None])           # [1, M, 3]
+    nrm = np.ascontiguousarray(normals, np.float64)                            # [M, 3]
+    if x.ndim != 2 or x.shape[1] != 3 or len(x) < 6 or Y.shape[2] != 3 or Y.shape[1] < 3 or \
+            nrm.shape != Y.shape[1:]:
+        raise InvalidPointsError(f"point-to-plane ICP needs observed [N≥6, 3], template [M≥3, 3] and normals [M, 3], "
+                                 f"got {x.shape}, {np.shape(template)}, {nrm.shape}")
+    R, t = np.array(R0, np.float64), np.array(t0, np.float64)
+    J = len(R)
+    if R.shape != (J, 3, 3) or t.shape != (J, 3):
+        raise InvalidPointsError(f"ICP starts must be R0 [J, 3, 3] and t0 [J, 3], got {R.shape}, {t.shape}")
+    res = np.zeros(J)
+    parts = split_ranges(J, workers_in_scope() if workers is None else workers) if J else []
+    run_parts(_icp_plane_loop, [(x, Y, nrm, R[a:b], t[a:b], int(iters), float(tol), res[a:b]) for a, b in parts])
     return R, t, res

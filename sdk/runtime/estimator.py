@@ -69,7 +69,8 @@ class PoseEstimator:
             off). "auto" (default): the file's (``equipose calibrate --model M --visibility E``) when re-scoring runs.
         model_points: instance-level mode (``equipose.runtime.instance``): [M, 3] metres of the object's own model
             (CAD frame); results are that model's pose (camera ← CAD), found by ICP of the ``instance_k`` best
-            hypotheses (``instance_iters`` iterations) against the model points instead of the predicted shape.
+            hypotheses (``instance_iters`` point-to-plane iterations) against the model points instead of the
+            predicted shape.
 
     Attribute ``runner``: None (onnxruntime, ``run_model``) or a callable with ``run_model``'s contract
     (model points [B, N, 3] float32 → the 4 output arrays) used in its place by every ``predict*`` call; ``equipose

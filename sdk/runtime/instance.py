@@ -8,13 +8,14 @@ Convention:
 How: the network is run once on the model points (centred, scaled to model units) to express them in its learned frame,
 ``y = A · q / s + b`` (A = R_cᵀ, b = −R_cᵀ (c_q / s + t_c) from its best hypothesis (R_c, t_c)). For an observation, the
 network's hypotheses (R_i, t_i) map learned frame → observation, ``x ≈ R_i y + t_i``; coarse to fine, all 60 get
-``COARSE_ITERS`` ICP steps (``COARSE_POINTS`` of the observation against the first ``SUB_TEMPLATE_POINTS`` of the
-FPS-ordered template: a dense product), the ``k`` best of those are refined to convergence against that part of the
-template and the ``FINE_K`` best of those again against the whole template, re-ranked by residual (observation → model),
-and the winner is composed back: ``R = R_i A``, ``t = s (R_i b + t_i) + c``. An equivariant network gives the same
-composed seeds whatever the CAD frame is, so a category model is a seed generator for any object; ICP on the true
-geometry gives the precision. Iterations: 50 by default (a start stops early once its pairs repeat; the choice is
-measured in docs/results/models/README.md, instance-level mode).
+``COARSE_ITERS`` point-to-point ICP steps (``COARSE_POINTS`` of the observation against the first
+``SUB_TEMPLATE_POINTS`` of the FPS-ordered template: a dense product), the ``k`` best of those converge point-to-plane
+(``equipose.core.icp.icp_point_to_plane``, template normals from ``equipose.core.normals``) against that part of the
+template, the ``FINE_K`` best of those again against the whole template and then get ``POLISH_ITERS`` point-to-point
+steps, re-ranked by residual (observation → model), and the winner is composed back: ``R = R_i A``, ``t = s (R_i b +
+t_i) + c``. An equivariant network gives the same composed seeds whatever the CAD frame is, so a category model is a
+seed generator for any object; ICP on the true geometry gives the precision. Point-to-point ICP alone creeps along flat
+parts and stalls a few degrees off (measured in docs/benchmarks.md, v0.31).
 """
 from __future__ import annotations
 
@@ -24,17 +25,22 @@ import numpy as np
 
 from equipose.core.errors import ConfigError
 from equipose.core.geometry import farthest_point_order
+from equipose.core.normals import point_normals
 from equipose.preprocess import check_points, prepare_points
 
 __all__ = ["InstanceModel", "build_instance_model", "INSTANCE_ITERS", "COARSE_ITERS", "COARSE_POINTS",
-           "SUB_TEMPLATE_POINTS", "FINE_K", "turned_fits", "undecided_turn", "better_turn"]
+           "SUB_TEMPLATE_POINTS", "FINE_K", "CONVERGED_STEP", "POLISH_ITERS", "TURN_CONVERGE_ITERS", "turned_fits",
+           "undecided_turn", "better_turn"]
 
 TEMPLATE_POINTS = 1024          # model points kept (FPS) for ICP
 COARSE_ITERS = 3                # ICP steps for every hypothesis before the k best are refined ...
 COARSE_POINTS = 128             # ... on this many observed points (FPS prefix of the model input)
 SUB_TEMPLATE_POINTS = 256       # model points (FPS prefix) of the coarse steps and of the k best's convergence
 FINE_K = 3                      # hypotheses converged again on the whole template
-INSTANCE_ITERS = 50             # ICP iterations to convergence (default of PoseEstimator(instance_iters=...))
+INSTANCE_ITERS = 15             # point-to-plane iterations to convergence (PoseEstimator(instance_iters=...))
+CONVERGED_STEP = 1e-5           # ... a start stops once a step moves less (radians, model units)
+POLISH_ITERS = 10               # point-to-point iterations of the FINE_K best after their convergence
+TURN_CONVERGE_ITERS = 50        # point-to-point iterations that converge a turned start which fits better
 TURN_ANGLES_DEG = (60.0, 120.0, 180.0, 240.0, 300.0)   # turns of the chosen pose tried about each principal axis
 TURN_ITERS = 6                  # ICP steps of each turned start
 TURN_TEMPLATE_POINTS = 256      # template points of the turn test (a dense product instead of a k-d tree)
@@ -46,12 +52,13 @@ class InstanceModel:
     """A known object in the network's learned frame.
 
     Attributes: ``points_m`` [M', 3] metres, CAD frame (an FPS subset of the model points, FPS-ordered); ``template``
-    [M', 3] the same points in model units, learned frame;
+    [M', 3] the same points in model units, learned frame; ``normals`` [M', 3] the template's unit normals;
     ``A`` [3, 3], ``b`` [3]: CAD (metres / scale) → learned frame; ``k`` hypotheses refined per observation;
-    ``iters`` ICP iterations.
+    ``iters`` point-to-plane iterations to convergence.
     """
     points_m: np.ndarray
     template: np.ndarray
+    normals: np.ndarray
     A: np.ndarray
     b: np.ndarray
     k: int
@@ -73,22 +80,24 @@ def build_instance_model(est, model_points, *, k: int = 10, iters: int = INSTANC
     R_c = U @ np.diag([1.0, 1.0, np.linalg.det(U @ Vt)]) @ Vt
     A, b = R_c.T, -R_c.T @ (prep.centre_m / est.scale + t_c)
     sub = q[farthest_point_order(q.astype(np.float32), min(TEMPLATE_POINTS, len(q)))]  # [M', 3] m
-    return InstanceModel(points_m=sub, template=sub / est.scale @ A.T + b, A=A, b=b, k=k, iters=iters)
+    template = sub / est.scale @ A.T + b                                        # [M', 3] model units, learned frame
+    return InstanceModel(points_m=sub, template=template, normals=point_normals(template), A=A, b=b, k=k, iters=iters)
 
 
-def turned_fits(points: np.ndarray, template: np.ndarray, R: np.ndarray, t: np.ndarray) -> tuple:
+def turned_fits(points: np.ndarray, template: np.ndarray, R: np.ndarray, t: np.ndarray, normals=None) -> tuple:
     """The chosen pose's turns about the template's principal axes, each after ``TURN_ITERS`` ICP steps.
 
     Convention: ``points`` [N, 3] the observation, ``template`` [M, 3] FPS-ordered, both model units; (``R`` [3, 3],
     ``t`` [3]) the chosen pose (template → observation). Residuals (mean squared observed → template distance) are
     taken on the template's first ``TURN_TEMPLATE_POINTS`` points. Each turn of ``TURN_ANGLES_DEG`` about each
-    principal axis through the template's centroid is one ICP start. Returns (the pose's residual, the turns' poses
-    [T, 3, 3] and [T, 3], their residuals [T], [T] bool: ended more than ``TURN_MIN_DEG`` from the pose, i.e. did not
-    slide back to it).
+    principal axis through the template's centroid is one ICP start: point-to-plane when the template's ``normals``
+    [M, 3] are given (it reaches the turned basin in fewer steps), else point-to-point. Returns (the pose's
+    residual, the turns' poses [T, 3, 3] and [T, 3], their residuals [T], [T] bool: ended more than
+    ``TURN_MIN_DEG`` from the pose, i.e. did not slide back to it).
     """
     from scipy.spatial.transform import Rotation
 
-    from equipose.core.icp import icp_multi
+    from equipose.core.icp import icp_multi, icp_point_to_plane
     template = template[:TURN_TEMPLATE_POINTS]                                  # FPS prefix: an even subsample
     _, _, base = icp_multi(points, template, R[None], t[None], iters=0)        # the pose's residual on it
     c = template.mean(0)                                                        # [3]
@@ -96,7 +105,11 @@ def turned_fits(points: np.ndarray, template: np.ndarray, R: np.ndarray, t: np.n
     turns = Rotation.from_rotvec(np.concatenate([np.radians(TURN_ANGLES_DEG)[:, None] * a[None] for a in axes]))
     Rs = R @ turns.as_matrix()                                                  # [T, 3, 3] turned about c
     ts = t + R @ c - np.einsum("kij,j->ki", Rs, c)                              # [T, 3] c stays where it was
-    Rf, tf, res = icp_multi(points, template, Rs, ts, iters=TURN_ITERS)
+    if normals is None:
+        Rf, tf, res = icp_multi(points, template, Rs, ts, iters=TURN_ITERS)
+    else:                                                                       # point-to-plane reaches the basin
+        Rf, tf, res = icp_point_to_plane(points, template, normals[:TURN_TEMPLATE_POINTS], Rs, ts, iters=TURN_ITERS,
+                                         tol=CONVERGED_STEP)
     cos = (np.einsum("kij,ij->k", Rf, R) - 1.0) / 2.0                           # [T] cos of the angle to the pose
     return float(base[0]), Rf, tf, res, cos < np.cos(np.radians(TURN_MIN_DEG))
 

@@ -42,7 +42,7 @@ def load_kernels() -> float:
     from equipose.core.scores import hypothesis_scores
     from equipose.preprocess.crop import organized_outlier_mask
     from equipose.preprocess.plane import fit_plane_ransac
-    from equipose.runtime.cylinder import point_normals
+    from equipose.core.normals import point_normals
     from equipose.runtime.frame_priors import mirror_plane
 
     t0 = time.perf_counter()

@@ -87,3 +87,50 @@ def test_icp_multi_early_exit_matches_every_iteration(bidirectional):
         np.testing.assert_allclose(t[j], tr, atol=1e-9)
         assert res[j] == pytest.approx(rr, rel=1e-9)
     assert rotation_angle_deg(R[0], R_true) < 1.0                       # the near start converges to the truth
+
+
+def _box_surface(rng, n, size=(0.4, 0.25, 0.15)):
+    """[n, 3] points on the faces of a box centred at the origin, and their face normals [n, 3]."""
+    face = rng.integers(0, 6, n)
+    axis, sign = face % 3, np.where(face < 3, 1.0, -1.0)
+    half = np.array(size) / 2
+    p = rng.uniform(-1, 1, (n, 3)) * half
+    p[np.arange(n), axis] = sign * half[axis]
+    normals = np.zeros((n, 3))
+    normals[np.arange(n), axis] = sign
+    return p, normals
+
+
+def test_point_normals_of_a_box_are_its_face_normals():
+    from equipose.core.normals import point_normals
+    rng = np.random.default_rng(2)
+    half = np.array([0.4, 0.25, 0.15]) / 2
+    p, normals = _box_surface(rng, 3000)
+    on_face = np.abs(normals) > 0.5                                             # [n, 3] the face's own axis
+    inner = np.all(on_face | (np.abs(p) < half - 0.03), axis=1)                 # 3 cm or more from every edge
+    cos = np.abs(np.sum(point_normals(p)[inner] * normals[inner], axis=1))
+    assert inner.sum() > 1000 and np.median(cos) > 0.999 and np.mean(cos > 0.99) > 0.95
+
+
+def test_point_to_plane_icp_recovers_a_pose_that_point_to_point_leaves_creeping():
+    from equipose.core.icp import icp_multi, icp_point_to_plane
+    rng = np.random.default_rng(4)
+    tmpl, normals = _box_surface(rng, 1024)
+    R_true = random_rotations(1, seed=3)[0]
+    t_true = np.array([0.02, -0.03, 0.6])
+    obs_obj, _ = _box_surface(np.random.default_rng(5), 400)                  # other samples of the same surface
+    obs = obs_obj @ R_true.T + t_true + rng.normal(scale=0.001, size=obs_obj.shape)
+    R0 = (Rotation.from_rotvec([0.12, -0.08, 0.1]).as_matrix() @ R_true)[None]   # about 10° off
+    t0 = (t_true + np.array([0.01, 0.01, -0.01]))[None]
+    R, t, res = icp_point_to_plane(obs, tmpl, normals, R0, t0, iters=15)
+    assert rotation_angle_deg(R[0], R_true) < 0.5 and np.linalg.norm(t[0] - t_true) < 0.002
+    _, _, res0 = icp_multi(obs, tmpl, R, t, iters=0)                            # its residual is icp_multi's
+    np.testing.assert_allclose(res, res0, rtol=1e-9)
+    Rp, _, _ = icp_multi(obs, tmpl, R0, t0, iters=15)                           # the same 15 steps point-to-point
+    assert rotation_angle_deg(R[0], R_true) < rotation_angle_deg(Rp[0], R_true)
+
+
+def test_point_to_plane_icp_refuses_mismatched_normals():
+    from equipose.core.icp import icp_point_to_plane
+    with pytest.raises(InvalidPointsError):
+        icp_point_to_plane(np.zeros((10, 3)), np.ones((20, 3)), np.ones((19, 3)), np.eye(3)[None], np.zeros((1, 3)))

@@ -1,11 +1,11 @@
 """Stage ``instance`` (instance-level mode, ``PoseEstimator(model_points=...)``): the object's own model points take the
 place of the predicted shape (``equipose.runtime.instance``), coarse to fine: every hypothesis gets a few ICP steps
-(part of the view against part of the model), the ``k`` best go on to convergence against part of the model, the
-``FINE_K`` best of those against all of it, and the winner is composed back into the CAD frame. The winner's turns
-about the model's principal axes get a few ICP steps (``equipose.runtime.instance.turned_fits``): one that fits better
-is converged and takes the winner's place when it ends better (``better_turn``: the hypotheses can all miss the true
-pose's basin), and ``ambiguous`` is also set when one fits within the flip margin (10 %): a turn about a symmetry axis
-that the view cannot decide (``undecided_turn``).
+(part of the view against part of the model), the ``k`` best converge point-to-plane against part of the model, the
+``FINE_K`` best of those against all of it (then a point-to-point polish), and the winner is composed back into the
+CAD frame. The winner's turns about the model's principal axes get a few ICP steps
+(``equipose.runtime.instance.turned_fits``): one that fits better is converged and takes the winner's place when it
+ends better (``better_turn``: the hypotheses can all miss the true pose's basin), and ``ambiguous`` is also set when
+one fits within the flip margin (10 %): a turn about a symmetry axis that the view cannot decide (``undecided_turn``).
 
 Convention: model units, centred camera frame; the result is the CAD model's pose (camera ← CAD), no symmetry.
 """
@@ -13,10 +13,12 @@ from __future__ import annotations
 
 import numpy as np
 
+from equipose.core.icp import icp_point_to_plane
 from equipose.runtime.hypotheses import AMBIGUOUS_MARGIN, select_hypothesis
-from equipose.runtime.instance import (COARSE_ITERS, COARSE_POINTS, FINE_K, SUB_TEMPLATE_POINTS, better_turn,
-                                       turned_fits, undecided_turn)
-from equipose.runtime.refine import refine_hypotheses
+from equipose.runtime.instance import (COARSE_ITERS, COARSE_POINTS, CONVERGED_STEP, FINE_K, POLISH_ITERS,
+                                       SUB_TEMPLATE_POINTS, TURN_CONVERGE_ITERS, better_turn, turned_fits,
+                                       undecided_turn)
+from equipose.runtime.refine import rank_refined, refine_hypotheses
 from equipose.runtime.stage import ObjectState, Stage, register_stage
 
 __all__ = ["InstanceStage"]
@@ -43,20 +45,23 @@ class InstanceStage(Stage):
         x, Y = state.points, inst.template                                      # FPS-ordered: prefixes are even
         R, t, s = refine_hypotheses(x[:COARSE_POINTS], Y[:SUB_TEMPLATE_POINTS], state.R, state.t, state.scores,
                                     k=len(state.scores), iters=COARSE_ITERS, bidirectional=False)
-        R, t, s = refine_hypotheses(x, Y[:SUB_TEMPLATE_POINTS], R, t, s, k=inst.k, iters=inst.iters,
-                                    bidirectional=False)
-        R, t, s = refine_hypotheses(x, Y, R, t, s, k=min(FINE_K, inst.k), iters=inst.iters, bidirectional=False)
+        # the k best converge point-to-plane on part of the template, the FINE_K best of those on all of it; a
+        # point-to-point polish of those gives the precision and the residual every hypothesis is ranked by
+        R, t, s = _converge(x, Y[:SUB_TEMPLATE_POINTS], inst.normals[:SUB_TEMPLATE_POINTS], R, t, s, inst.k,
+                            inst.iters)
+        R, t, s = _converge(x, Y, inst.normals, R, t, s, min(FINE_K, inst.k), inst.iters)
+        R, t, s = refine_hypotheses(x, Y, R, t, s, k=min(FINE_K, inst.k), iters=POLISH_ITERS, bidirectional=False)
         R_obj = np.einsum("aij,jk->aik", R, inst.A)                             # [60, 3, 3] CAD → camera
         t_obj = np.einsum("aij,j->ai", R, inst.b) + t                           # [60, 3] model units
         sel = select_hypothesis(R_obj, t_obj, s, symmetry="none", top_k=state.top_k, prefer=state.prefer,
                                 prefer_margin=state.prefer_margin)
         i = sel.index
-        fits = turned_fits(state.points, inst.template, R[i], t[i])            # the winner's principal-axis turns
-        better = better_turn(state.points, inst.template, float(s[i]), fits, inst.iters)
+        fits = turned_fits(state.points, inst.template, R[i], t[i], inst.normals)   # the winner's principal-axis turns
+        better = better_turn(state.points, inst.template, float(s[i]), fits, TURN_CONVERGE_ITERS)
         if better is not None:                                                  # a turn fits better: it wins
             R[i], t[i], s[i] = better
             R_obj[i], t_obj[i] = R[i] @ inst.A, R[i] @ inst.b + t[i]
-            fits = turned_fits(state.points, inst.template, R[i], t[i])
+            fits = turned_fits(state.points, inst.template, R[i], t[i], inst.normals)
         # a turn of the chosen pose that fits almost as well (e.g. about a symmetry axis the view cannot decide)
         sel.ambiguous = bool(sel.ambiguous or undecided_turn(state.points, inst.template, R[i], t[i],
                                                              AMBIGUOUS_MARGIN, fits=fits))
@@ -65,3 +70,13 @@ class InstanceStage(Stage):
         state.selection, state.confidence, state.ambiguous = sel, sel.confidence, sel.ambiguous
         state.set_pose(U @ np.diag([1.0, 1.0, np.linalg.det(U @ Vt)]) @ Vt, t_obj[i])
         state.canonical_category = inst.points_m / self.scale                   # [M', 3] CAD frame, model units
+
+
+def _converge(x, Y, normals, R, t, s, k: int, iters: int) -> tuple:
+    """The ``k`` best-scored hypotheses (R [A, 3, 3], t [A, 3], scores s [A]) converged point-to-plane on the
+    template ``Y`` [M, 3] with its ``normals``; returns new (R, t, s), the others ranked behind (``rank_refined``)."""
+    top = np.argsort(s)[:k]                                                     # [k] best first
+    R, t = R.copy(), t.copy()
+    R[top], t[top], res = icp_point_to_plane(x, Y, normals, R[top], t[top], iters=iters, tol=CONVERGED_STEP)
+    return R, t, rank_refined(s, top, res)
+
