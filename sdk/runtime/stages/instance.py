@@ -79,4 +79,3 @@ def _converge(x, Y, normals, R, t, s, k: int, iters: int) -> tuple:
     R, t = R.copy(), t.copy()
     R[top], t[top], res = icp_point_to_plane(x, Y, normals, R[top], t[top], iters=iters, tol=CONVERGED_STEP)
     return R, t, rank_refined(s, top, res)
-
