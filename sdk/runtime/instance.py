@@ -34,7 +34,7 @@ __all__ = ["InstanceModel", "build_instance_model", "INSTANCE_ITERS", "COARSE_IT
 
 TEMPLATE_POINTS = 1024          # model points kept (FPS) for ICP
 COARSE_ITERS = 3                # ICP steps for every hypothesis before the k best are refined ...
-COARSE_POINTS = 128             # ... on this many observed points (FPS prefix of the model input)
+COARSE_POINTS = 64              # ... on this many observed points (FPS prefix of the model input)
 SUB_TEMPLATE_POINTS = 256       # model points (FPS prefix) of the coarse steps and of the k best's convergence
 FINE_K = 3                      # hypotheses converged again on the whole template
 INSTANCE_ITERS = 15             # point-to-plane iterations to convergence (PoseEstimator(instance_iters=...))
