@@ -296,7 +296,7 @@ def icp_point_to_plane(observed: np.ndarray, template: np.ndarray, normals: np.n
     x = np.ascontiguousarray(observed, np.float64)                             # [N, 3]
     Y = np.ascontiguousarray(np.asarray(template, np.float64)[None])           # [1, M, 3]
     nrm = np.ascontiguousarray(normals, np.float64)                            # [M, 3]
-    if x.ndim != 2 or x.shape[1] != 3 or len(x) < 6 or Y.shape[2] != 3 or Y.shape[1] < 3 or \
+    if x.ndim != 2 or x.shape[1] != 3 or len(x) < 6 or Y.ndim != 3 or Y.shape[2] != 3 or Y.shape[1] < 3 or \
             nrm.shape != Y.shape[1:]:
         raise InvalidPointsError(f"point-to-plane ICP needs observed [N≥6, 3], template [M≥3, 3] and normals [M, 3], "
                                  f"got {x.shape}, {np.shape(template)}, {nrm.shape}")

@@ -5,12 +5,12 @@ first process after an install compiles them all (30–60 s on a 2-core machine)
 0.3 s). ``PoseEstimator`` calls ``load_kernels()`` when it is built, so no frame pays for either and per-frame
 timings stay those of the steady state.
 
-Kernels: ICP and nearest neighbours (``equipose.core.icp``, ``equipose.core.nearest``), the network's
-neighbourhoods, kernel inputs and hypothesis scores (``equipose.core.neighbourhoods``, ``equipose.core.kernel_weights``,
-``equipose.core.scores``), farthest-point sampling
-(``equipose.core.geometry``), RANSAC plane scoring (``equipose.preprocess.plane``), the organized outlier filter
-(``equipose.preprocess.crop``), the mirror plane of the frame priors (``equipose.runtime.frame_priors``), the point
-normals of the cylinder stage (``equipose.runtime.cylinder``), the handle fit (``equipose.core.handles``).
+Kernels: ICP (point-to-point and point-to-plane) and nearest neighbours (``equipose.core.icp``,
+``equipose.core.nearest``), the network's neighbourhoods, kernel inputs and hypothesis scores
+(``equipose.core.neighbourhoods``, ``equipose.core.kernel_weights``, ``equipose.core.scores``), farthest-point
+sampling (``equipose.core.geometry``), RANSAC plane scoring (``equipose.preprocess.plane``), the organized outlier
+filter (``equipose.preprocess.crop``), the mirror plane of the frame priors (``equipose.runtime.frame_priors``), point
+normals (``equipose.core.normals``: the cylinder stage, instance mode), the handle fit (``equipose.core.handles``).
 """
 from __future__ import annotations
 
@@ -33,7 +33,7 @@ def load_kernels() -> float:
         return 0.0
     from equipose.core.geometry import farthest_point_order
     from equipose.core.handles import fit_handle
-    from equipose.core.icp import icp_multi
+    from equipose.core.icp import icp_multi, icp_point_to_plane
     from equipose.core.kernel_weights import kernel_inputs
     from equipose.core.neighbourhoods import (NeighbourhoodSpec, nearest_neighbourhoods, neighbourhood_specs,
                                               neighbourhoods)
@@ -51,6 +51,7 @@ def load_kernels() -> float:
     for bidirectional in (False, True):
         icp_multi(x, x, np.eye(3)[None], np.zeros((1, 3)), iters=1, bidirectional=bidirectional)
     icp_multi(x, x[None], np.eye(3)[None], np.zeros((1, 3)), iters=1, hold=(2, [0.0, 0.0, 1.0]))
+    icp_point_to_plane(x, x, np.tile([0.0, 0.0, 1.0], (len(x), 1)), np.eye(3)[None], np.zeros((1, 3)), iters=1)
     for brute_max in (0, 64):
         NearestNeighbours(x, brute_max=brute_max).query(x, guess=np.arange(len(x)))
     farthest_point_order(x, 8)
