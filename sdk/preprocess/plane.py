@@ -62,10 +62,17 @@ def _inlier_moments(points, n, d, threshold) -> tuple:
     return count, c, S
 
 
-@functools.lru_cache(maxsize=32)
 def _triples(P: int, iterations: int, seed) -> np.ndarray:
-    """[iterations, 3] random point indices below ``P`` from ``seed`` (read-only; the same triples every call: a
-    camera's frames keep nearly the same number of valid lattice points)."""
+    """[iterations, 3] random point indices below ``P`` from ``seed``. An int seed's triples are drawn once and kept
+    (read-only: a camera's frames keep nearly the same number of valid lattice points); any other seed (None, a
+    ``Generator``) draws afresh, as ``np.random.default_rng`` does."""
+    if isinstance(seed, (int, np.integer)) and not isinstance(seed, bool):
+        return _seeded_triples(P, iterations, int(seed))
+    return np.random.default_rng(seed).integers(0, P, size=(iterations, 3))
+
+
+@functools.lru_cache(maxsize=32)
+def _seeded_triples(P: int, iterations: int, seed: int) -> np.ndarray:
     tri = np.random.default_rng(seed).integers(0, P, size=(iterations, 3))
     tri.flags.writeable = False
     return tri
