@@ -37,8 +37,7 @@ def _normals(P, k, out) -> None:
                 continue
             pos = m if m < k else k - 1                                       # insertion into the sorted list
             while pos > 0 and near_d[pos - 1] > d:
-                if pos < k:
-                    near_d[pos], near_i[pos] = near_d[pos - 1], near_i[pos - 1]
+                near_d[pos], near_i[pos] = near_d[pos - 1], near_i[pos - 1]
                 pos -= 1
             near_d[pos], near_i[pos] = d, j
             if m < k:

@@ -106,8 +106,8 @@ def resolve_model_file(model_path) -> pathlib.Path:
     path = pathlib.Path(model_path)
     if not path.exists() and isinstance(model_path, str) and "/" not in model_path and "\\" not in model_path:
         path = resolve_model(model_path)                    # a shipped model's name (an int8 copy made current there)
-    elif fp32_path_for(path) is not None and fp32_path_for(path).is_file():    # an int8 copy: built / kept current
-        path = ensure_int8(fp32_path_for(path))
+    elif (fp32 := fp32_path_for(path)) is not None and fp32.is_file():      # an int8 copy: built / kept current
+        path = ensure_int8(fp32)
     if path.is_dir():
         raise ModelFormatError(f"{str(path)!r} is a directory; pass the path of an equipose .onnx file in it")
     if not path.is_file():

@@ -131,7 +131,9 @@ def view_rescore(prep, template: np.ndarray, rotations: np.ndarray, translations
     for i, h in member.items():                                                 # right behind its group's head
         out[i] = np.nextafter(out[h], np.inf)
     top = max(out[heads].max(), max((out[i] for i in member), default=-np.inf))
-    rest = np.setdiff1d(np.arange(len(s)), order)
+    others = np.ones(len(s), bool)
+    others[order] = False
+    rest = np.flatnonzero(others)                                              # ascending, as setdiff1d gave
     if len(rest):
         out[rest] = top + 1e-9 + (s[rest] - s[rest].min())
     return out
