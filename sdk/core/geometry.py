@@ -12,7 +12,8 @@ from numba import njit
 from scipy.spatial.transform import Rotation
 
 __all__ = ["quaternion_to_matrix", "matrix_to_quaternion", "rotation_angle_deg", "axis_angle_deg", "backproject",
-           "farthest_point_order", "farthest_point_orders", "random_rotations", "rotation_between", "nearest_rotation", "cross"]
+           "farthest_point_order", "farthest_point_orders", "random_rotations", "rotation_between", "nearest_rotation",
+           "cross"]
 
 
 def quaternion_to_matrix(q) -> np.ndarray:
@@ -156,7 +157,7 @@ def rotation_between(a, b) -> np.ndarray:
     b = np.asarray(b, np.float64)
     a, b = np.broadcast_arrays(a / np.linalg.norm(a, axis=-1, keepdims=True),
                                b / np.linalg.norm(b, axis=-1, keepdims=True))           # [..., 3] unit
-    v, c = cross(a, b), np.einsum("...i,...i->...", a, b)                           # [..., 3], [...]
+    v, c = cross(a, b), np.einsum("...i,...i->...", a, b)                              # [..., 3], [...]
     V = np.zeros(v.shape + (3,))
     V[..., 0, 1], V[..., 0, 2], V[..., 1, 2] = -v[..., 2], v[..., 1], -v[..., 0]
     V = V - np.swapaxes(V, -1, -2)                                                      # [..., 3, 3] cross matrices

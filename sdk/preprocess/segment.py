@@ -54,7 +54,7 @@ def auto_masks(depth, K, *, depth_unit="mm", image_size=None, min_depth: float =
         from scipy.spatial import ConvexHull, QhullError
         e1 = cross(n, [1.0, 0.0, 0.0] if abs(n[0]) < 0.9 else [0.0, 1.0, 0.0])
         e1 /= np.linalg.norm(e1)
-        e2 = cross(n, e1)                                                    # (e1, e2) span the plane
+        e2 = cross(n, e1)                                                       # (e1, e2) span the plane
         table2d = sub[inl] @ np.stack([e1, e2], 1)                              # [T, 2]
         try:
             eq = ConvexHull(table2d).equations                                  # [F, 3]: inside ⇔ a·q + b ≤ 0

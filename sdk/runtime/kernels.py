@@ -39,10 +39,10 @@ def load_kernels() -> float:
                                               neighbourhoods)
     from equipose.core.presets import LayerSpec
     from equipose.core.neighbours import NearestNeighbours
+    from equipose.core.normals import point_normals
     from equipose.core.scores import hypothesis_scores
     from equipose.preprocess.crop import organized_outlier_mask
     from equipose.preprocess.plane import fit_plane_ransac
-    from equipose.core.normals import point_normals
     from equipose.runtime.frame_priors import mirror_plane
 
     t0 = time.perf_counter()

@@ -34,7 +34,7 @@ def rest_facet_up(points, up_guess, tolerance_deg: float = REST_TOLERANCE_DEG) -
         return None
     n, off = hull.equations[:, :3], hull.equations[:, 3]                        # [F, 3] outward unit, [F]
     tri = P[hull.simplices]                                                     # [F, 3, 3]
-    area = 0.5 * np.linalg.norm(cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)   # [F]
+    area = 0.5 * np.linalg.norm(cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)      # [F]
     cand = np.nonzero(n @ -u > np.cos(np.radians(tolerance_deg)))[0]
     if len(cand) == 0:
         return None
