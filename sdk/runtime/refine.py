@@ -15,15 +15,19 @@ from __future__ import annotations
 
 import numpy as np
 
-from equipose.core.errors import InvalidPointsError
-from equipose.core.icp import icp_multi, kabsch
+from equipose.core.errors import ConfigError, InvalidPointsError
+from equipose.core.icp import icp_multi, icp_point_to_plane, kabsch
 
 __all__ = ["kabsch", "icp_multi", "refine_hypotheses", "rank_refined"]
 
 
 def refine_hypotheses(points: np.ndarray, template: np.ndarray, rotations: np.ndarray, translations: np.ndarray,
-                      scores: np.ndarray, k: int = 5, iters: int = 10, bidirectional: bool = False) -> tuple:
+                      scores: np.ndarray, k: int = 5, iters: int = 10, bidirectional: bool = False,
+                      normals: np.ndarray | None = None, tol: float = 1e-7) -> tuple:
     """ICP-refine the ``k`` best-scored hypotheses and re-score them by their ICP residual.
+
+    With the template's ``normals`` [M, 3] the ICP is point-to-plane (``icp_point_to_plane``, stopping at steps below
+    ``tol``; one-way only), else point-to-point (``icp_multi``). Both report the point-to-point residual.
 
     Convention: ``points`` [N, 3] observation, ``template`` [M, 3] the predicted canonical shape (learned frame),
     ``rotations`` [A, 3, 3], ``translations`` [A, 3], ``scores`` [A] (lower better) — all in model units.
@@ -37,9 +41,15 @@ def refine_hypotheses(points: np.ndarray, template: np.ndarray, rotations: np.nd
     s = np.asarray(scores, np.float64)
     if R.ndim != 3 or R.shape[1:] != (3, 3) or t.shape != (len(R), 3) or s.shape != (len(R),):
         raise InvalidPointsError(f"hypotheses must be [A, 3, 3], [A, 3], [A]; got {R.shape}, {t.shape}, {s.shape}")
+    if normals is not None and bidirectional:
+        raise ConfigError("point-to-plane refinement (normals given) fits observation → template only: pass "
+                          "bidirectional=False")
     k = int(min(max(k, 1), len(R)))
     top = np.argsort(s)[:k]                                                    # [k]
-    Rk, tk, res = icp_multi(points, template, R[top], t[top], iters=iters, bidirectional=bidirectional)
+    if normals is None:
+        Rk, tk, res = icp_multi(points, template, R[top], t[top], iters=iters, bidirectional=bidirectional)
+    else:
+        Rk, tk, res = icp_point_to_plane(points, template, normals, R[top], t[top], iters=iters, tol=tol)
     R_out, t_out = R.copy(), t.copy()
     R_out[top], t_out[top] = Rk, tk
     return R_out, t_out, rank_refined(s, top, res)

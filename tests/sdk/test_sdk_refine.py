@@ -134,3 +134,20 @@ def test_point_to_plane_icp_refuses_mismatched_normals():
     from equipose.core.icp import icp_point_to_plane
     with pytest.raises(InvalidPointsError):
         icp_point_to_plane(np.zeros((10, 3)), np.ones((20, 3)), np.ones((19, 3)), np.eye(3)[None], np.zeros((1, 3)))
+
+
+def test_refine_hypotheses_point_to_plane_matches_the_core_and_is_one_way():
+    from equipose.core.icp import icp_point_to_plane
+    rng = np.random.default_rng(6)
+    tmpl, normals = _box_surface(rng, 512)
+    R_true = random_rotations(1, seed=7)[0]
+    obs = _box_surface(np.random.default_rng(8), 300)[0] @ R_true.T
+    R = np.stack([Rotation.from_rotvec(rng.normal(size=3) * 0.1).as_matrix() @ R_true for _ in range(6)])
+    t, scores = np.zeros((6, 3)), np.arange(6.0)[::-1]
+    R2, t2, s2 = refine_hypotheses(obs, tmpl, R, t, scores, k=3, iters=10, normals=normals, tol=1e-6)
+    top = np.argsort(scores)[:3]
+    Rc, tc, rc = icp_point_to_plane(obs, tmpl, normals, R[top], t[top], iters=10, tol=1e-6)
+    np.testing.assert_array_equal(R2[top], Rc)
+    np.testing.assert_array_equal(s2[top], rc)
+    with pytest.raises(ConfigError):
+        refine_hypotheses(obs, tmpl, R, t, scores, k=3, normals=normals, bidirectional=True)

@@ -13,12 +13,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from equipose.core.icp import icp_point_to_plane
 from equipose.runtime.hypotheses import AMBIGUOUS_MARGIN, select_hypothesis
 from equipose.runtime.instance import (COARSE_ITERS, COARSE_POINTS, CONVERGED_STEP, FINE_K, POLISH_ITERS,
                                        SUB_TEMPLATE_POINTS, TURN_CONVERGE_ITERS, better_turn, turned_fits,
                                        undecided_turn)
-from equipose.runtime.refine import rank_refined, refine_hypotheses
+from equipose.runtime.refine import refine_hypotheses
 from equipose.runtime.stage import ObjectState, Stage, register_stage
 
 __all__ = ["InstanceStage"]
@@ -47,9 +46,10 @@ class InstanceStage(Stage):
                                     k=len(state.scores), iters=COARSE_ITERS, bidirectional=False)
         # the k best converge point-to-plane on part of the template, the FINE_K best of those on all of it; a
         # point-to-point polish of those gives the precision and the residual every hypothesis is ranked by
-        R, t, s = _converge(x, Y[:SUB_TEMPLATE_POINTS], inst.normals[:SUB_TEMPLATE_POINTS], R, t, s, inst.k,
-                            inst.iters)
-        R, t, s = _converge(x, Y, inst.normals, R, t, s, min(FINE_K, inst.k), inst.iters)
+        R, t, s = refine_hypotheses(x, Y[:SUB_TEMPLATE_POINTS], R, t, s, k=inst.k, iters=inst.iters,
+                                    normals=inst.normals[:SUB_TEMPLATE_POINTS], tol=CONVERGED_STEP)
+        R, t, s = refine_hypotheses(x, Y, R, t, s, k=min(FINE_K, inst.k), iters=inst.iters, normals=inst.normals,
+                                    tol=CONVERGED_STEP)
         R, t, s = refine_hypotheses(x, Y, R, t, s, k=min(FINE_K, inst.k), iters=POLISH_ITERS, bidirectional=False)
         R_obj = np.einsum("aij,jk->aik", R, inst.A)                             # [60, 3, 3] CAD → camera
         t_obj = np.einsum("aij,j->ai", R, inst.b) + t                           # [60, 3] model units
@@ -70,12 +70,3 @@ class InstanceStage(Stage):
         state.selection, state.confidence, state.ambiguous = sel, sel.confidence, sel.ambiguous
         state.set_pose(U @ np.diag([1.0, 1.0, np.linalg.det(U @ Vt)]) @ Vt, t_obj[i])
         state.canonical_category = inst.points_m / self.scale                   # [M', 3] CAD frame, model units
-
-
-def _converge(x, Y, normals, R, t, s, k: int, iters: int) -> tuple:
-    """The ``k`` best-scored hypotheses (R [A, 3, 3], t [A, 3], scores s [A]) converged point-to-plane on the
-    template ``Y`` [M, 3] with its ``normals``; returns new (R, t, s), the others ranked behind (``rank_refined``)."""
-    top = np.argsort(s)[:k]                                                     # [k] best first
-    R, t = R.copy(), t.copy()
-    R[top], t[top], res = icp_point_to_plane(x, Y, normals, R[top], t[top], iters=iters, tol=CONVERGED_STEP)
-    return R, t, rank_refined(s, top, res)
