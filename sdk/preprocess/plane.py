@@ -12,7 +12,7 @@ import numpy as np
 from numba import njit
 
 from equipose.core.errors import TooFewPointsError
-from equipose.core.geometry import cross
+from equipose.core.eigen import top_eigenvector
 
 __all__ = ["fit_plane_ransac", "find_support_plane"]
 
@@ -92,31 +92,55 @@ def fit_plane_ransac(points: np.ndarray, threshold: float = 0.01, iterations: in
     P = len(points)
     if P < 3:
         raise TooFewPointsError(f"plane fit needs ≥ 3 points, got {P}")
+    P64 = np.ascontiguousarray(points, np.float64)                             # [P, 3]
     tri = _triples(P, int(iterations), seed)                                    # [I, 3]
-    a, b, c = points[tri[:, 0]], points[tri[:, 1]], points[tri[:, 2]]           # [I, 3] each
-    normals = cross(b - a, c - a)                                               # [I, 3]
-    norms = np.linalg.norm(normals, axis=1)                                     # [I]
-    ok = norms > 1e-9
-    normals, a = normals[ok] / norms[ok, None], a[ok]
-    offsets = -np.einsum("ij,ij->i", normals, a)                                # [I']
+    normals, offsets = _plane_hypotheses(P64, tri)                              # [I', 3], [I']
     if len(normals) == 0:
         raise TooFewPointsError("plane fit failed: all sampled point triples are collinear")
-    sub = np.ascontiguousarray(points[:: max(1, P // 1500)].T, np.float32)     # [3, S ≤ 3000] scoring subset
+    sub = np.ascontiguousarray(P64[:: max(1, P // 1500)].T, np.float32)        # [3, S ≤ 3000] scoring subset
     j = _best_plane(sub, normals.astype(np.float32), offsets.astype(np.float32), np.float32(threshold),
                     float(confidence), int(chunk))
-    best_n, best_d = normals[j], offsets[j]
-    P64 = np.ascontiguousarray(points, np.float64)
-    for _ in range(2):                                                          # least-squares refinement
-        count, c0, scatter = _inlier_moments(P64, best_n, float(best_d), float(threshold))
+    best_n, best_d = _refit(P64, normals[j], float(offsets[j]), float(threshold))
+    inl = np.abs(P64 @ best_n + best_d) < threshold                             # [P]
+    return best_n, best_d, inl
+
+
+@njit(cache=True)
+def _plane_hypotheses(points, tri) -> tuple:
+    """(unit normals [I', 3], offsets [I']) float64 of the planes through the point triples ``tri`` [I, 3] of
+    ``points`` [P, 3] float64, in the order of ``tri``, collinear triples dropped."""
+    normals, offsets = np.empty((len(tri), 3)), np.empty(len(tri))
+    m = 0
+    for t in range(len(tri)):
+        a, b, c = points[tri[t, 0]], points[tri[t, 1]], points[tri[t, 2]]
+        u0, u1, u2 = b[0] - a[0], b[1] - a[1], b[2] - a[2]
+        v0, v1, v2 = c[0] - a[0], c[1] - a[1], c[2] - a[2]
+        n0, n1, n2 = u1 * v2 - u2 * v1, u2 * v0 - u0 * v2, u0 * v1 - u1 * v0    # (b − a) × (c − a)
+        norm = np.sqrt(n0 * n0 + n1 * n1 + n2 * n2)
+        if norm <= 1e-9:                                                        # collinear
+            continue
+        n0, n1, n2 = n0 / norm, n1 / norm, n2 / norm
+        normals[m, 0], normals[m, 1], normals[m, 2] = n0, n1, n2
+        offsets[m] = -(n0 * a[0] + n1 * a[1] + n2 * a[2])
+        m += 1
+    return normals[:m], offsets[:m]
+
+
+@njit(cache=True)
+def _refit(points, n, d, threshold) -> tuple:
+    """(normal [3], offset) of plane (``n`` [3], ``d``) refit twice by least squares on its inliers within
+    ``threshold`` in ``points`` [P, 3] float64 (the scatter's least-variance direction), oriented so that d ≥ 0."""
+    n = n.copy()
+    for _ in range(2):
+        count, c0, scatter = _inlier_moments(points, n, d, threshold)
         if count < 3:
             break
-        _, vecs = np.linalg.eigh(scatter)                                       # 3×3 scatter, ascending eigenvalues
-        best_n = vecs[:, 0]                                                     # least-variance direction
-        best_d = -float(best_n @ c0)
-    if best_d < 0:
-        best_n, best_d = -best_n, -best_d
-    inl = np.abs(points @ best_n + best_d) < threshold
-    return best_n, float(best_d), inl
+        # least-variance direction of the scatter = the top eigenvector of trace · I − scatter
+        n = top_eigenvector(np.trace(scatter) * np.eye(3) - scatter)
+        d = -(n[0] * c0[0] + n[1] * c0[1] + n[2] * c0[2])
+    if d < 0:
+        n, d = -n, -d
+    return n, d
 
 
 def find_support_plane(depth_m: np.ndarray, K: np.ndarray, *, threshold: float = 0.012, min_fraction: float = 0.2,
@@ -127,12 +151,25 @@ def find_support_plane(depth_m: np.ndarray, K: np.ndarray, *, threshold: float =
     lattice; the plane counts when at least ``min_fraction`` of the lattice's valid points are within ``threshold``.
     Returns (normal [3], offset) oriented so the camera side is positive (see ``fit_plane_ransac``), or None.
     """
-    sub = np.asarray(depth_m)[::grid, ::grid]                                   # [h, w] m
-    r, c = np.nonzero(sub > 0)
-    if len(r) < 100:
+    K = np.asarray(K, np.float64)
+    pts = _lattice_points(np.asarray(depth_m), int(grid), K[0, 0], K[1, 1], K[0, 2], K[1, 2])  # [S, 3] m
+    if len(pts) < 100:
         return None
-    z = sub[r, c].astype(np.float64)
-    rows, cols = r * grid, c * grid
-    pts = np.stack([(cols - K[0, 2]) * z / K[0, 0], (rows - K[1, 2]) * z / K[1, 1], z], 1)  # [S, 3] m
     n, off, inl = fit_plane_ransac(pts, threshold=threshold, seed=seed)
     return (n, off) if inl.mean() >= min_fraction else None
+
+
+@njit(cache=True)
+def _lattice_points(depth, grid, fx, fy, cx, cy):
+    """[S, 3] float64 metres: the valid pixels (depth > 0) of every ``grid``-th row and column of ``depth`` [H, W]
+    metres, back-projected (pinhole, no skew), in row-major order."""
+    H, W = depth.shape
+    out = np.empty(((H + grid - 1) // grid * ((W + grid - 1) // grid), 3))
+    m = 0
+    for r in range(0, H, grid):
+        for c in range(0, W, grid):
+            z = np.float64(depth[r, c])
+            if z > 0:
+                out[m, 0], out[m, 1], out[m, 2] = (c - cx) * z / fx, (r - cy) * z / fy, z
+                m += 1
+    return out[:m]

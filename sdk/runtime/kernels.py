@@ -8,9 +8,10 @@ timings stay those of the steady state.
 Kernels: ICP (point-to-point and point-to-plane) and nearest neighbours (``equipose.core.icp``,
 ``equipose.core.nearest``), the network's neighbourhoods, kernel inputs and hypothesis scores
 (``equipose.core.neighbourhoods``, ``equipose.core.kernel_weights``, ``equipose.core.scores``), farthest-point
-sampling (``equipose.core.geometry``), RANSAC plane scoring (``equipose.preprocess.plane``), the organized outlier
-filter (``equipose.preprocess.crop``), the mirror plane of the frame priors (``equipose.runtime.frame_priors``), point
-normals (``equipose.core.normals``: the cylinder stage, instance mode), the handle fit (``equipose.core.handles``).
+sampling (``equipose.core.geometry``), RANSAC plane fit (``equipose.preprocess.plane``), the organized outlier
+filter (``equipose.preprocess.crop``), the box prompt's surfaces (``equipose.preprocess.surfaces``), the mirror plane
+of the frame priors (``equipose.runtime.frame_priors``), point normals (``equipose.core.normals``: the cylinder stage,
+instance mode), the handle fit (``equipose.core.handles``).
 """
 from __future__ import annotations
 
@@ -42,7 +43,8 @@ def load_kernels() -> float:
     from equipose.core.normals import point_normals
     from equipose.core.scores import hypothesis_scores
     from equipose.preprocess.crop import organized_outlier_mask
-    from equipose.preprocess.plane import fit_plane_ransac
+    from equipose.preprocess.plane import find_support_plane, fit_plane_ransac
+    from equipose.preprocess.surfaces import box_object_cluster, surface_segments
     from equipose.runtime.frame_priors import mirror_plane
 
     t0 = time.perf_counter()
@@ -61,8 +63,14 @@ def load_kernels() -> float:
     x32 = x[None].astype(np.float32)
     kernel_inputs(x32, layers, neighbourhoods(x32, neighbourhood_specs(layers)))
     fit_plane_ransac(np.c_[x[:, :2], np.zeros(len(x))])                        # a plane: the refit runs too
+    find_support_plane(np.ones((8, 8), np.float32), np.array([[4.0, 0, 4], [0, 4.0, 4], [0, 0, 1]]), grid=1)
     grid = np.arange(16)
     organized_outlier_mask(rng.normal(size=(16, 3)), grid // 4, grid % 4)
+    z = np.r_[np.full(8, 0.5), np.full(8, 0.8)]
+    labels, cut = surface_segments(z, grid // 4, grid % 4, step=1, focal=100.0)
+    box_object_cluster(z, grid // 4, grid % 4, (0, 0, 4, 4))                   # depth clusters, then surfaces
+    box_object_cluster(z, grid // 4, grid % 4, (0, 0, 4, 4), labels=labels, cut=cut, points=np.c_[x[:16, :2], z],
+                       focal=100.0)
     mirror_plane(x, [1.0, 0.0, 0.0])
     point_normals(x)
     fit_handle(rng.normal(size=(60, 3)))
