@@ -16,6 +16,7 @@ from numba import njit
 from scipy.spatial import cKDTree
 
 from equipose.core.errors import ConfigError, DepthDtypeError, EmptyDepthError, RegionError, TooFewPointsError
+from equipose.core.order_statistics import median
 from equipose.preprocess.plane import find_support_plane
 from equipose.preprocess.sampling import MIN_POINTS
 from equipose.preprocess.surfaces import box_object_cluster, nearest_depth_cluster, occluded_fraction, surface_segments
@@ -79,16 +80,34 @@ def organized_outlier_mask(points: np.ndarray, rows: np.ndarray, cols: np.ndarra
     P = len(points)
     if P < 10:
         return np.ones(P, dtype=bool)
+    rows, cols = np.asarray(rows, np.int64), np.asarray(cols, np.int64)
     r = (rows - rows.min()) // step                                             # [P] grid coordinates
     c = (cols - cols.min()) // step
-    total, count = _grid_neighbour_distances(np.ascontiguousarray(points, np.float32), r, c)   # [P], [P]
-    has = count > 0
-    if has.sum() < 10:
-        return has
-    mean_d = (total[has] / count[has]).astype(np.float64)                       # [P']
-    thr = mean_d.mean() + std_ratio * mean_d.std()
-    keep = np.zeros(P, dtype=bool)
-    keep[has] = mean_d <= thr
+    return _grid_inliers(np.ascontiguousarray(points, np.float32), r, c, float(std_ratio))
+
+
+@njit(cache=True)
+def _grid_inliers(points, r, c, std_ratio):
+    """[P] bool: the points [P, 3] float32 at grid cells (``r``, ``c``) [P] whose mean distance to their present grid
+    neighbours is at most mean + ``std_ratio`` · std of that statistic; points without neighbours are out."""
+    total, count = _grid_neighbour_distances(points, r, c)                      # [P], [P]
+    P = len(points)
+    mean_d = np.zeros(P)                                                        # [P] float64, valid where count > 0
+    n = 0
+    for i in range(P):
+        if count[i] > 0:
+            mean_d[i] = np.float64(total[i] / count[i])
+            n += 1
+    if n < 10:
+        return count > 0
+    mu, var = mean_d.sum() / n, 0.0
+    for i in range(P):
+        if count[i] > 0:
+            var += (mean_d[i] - mu) ** 2
+    thr = mu + std_ratio * np.sqrt(var / n)
+    keep = np.zeros(P, np.bool_)
+    for i in range(P):
+        keep[i] = count[i] > 0 and mean_d[i] <= thr
     return keep
 
 
@@ -112,6 +131,86 @@ def _grid_neighbour_distances(points, r, c) -> tuple:
                 total[i] += np.sqrt(dx * dx + dy * dy + dz * dz)
                 count[i] += 1
     return total, count
+
+
+def _plane_heights(plane, K, x0, y0, x1, y1) -> tuple:
+    """The separable terms of the height above ``plane`` (normal [3], offset) of a window pixel (row, col) at depth z:
+    z · (ry[row] + cx[col]) + offset. Returns (ry [h] float64, cx [w] float64, offset float32)."""
+    n, off = plane
+    cx = (np.arange(x0, x1, dtype=np.float32) - K[0, 2]) / K[0, 0] * n[0]                 # [w]
+    ry = (np.arange(y0, y1, dtype=np.float32) - K[1, 2]) / K[1, 1] * n[1] + n[2]          # [h]
+    return ry, cx, np.float32(off)
+
+
+@njit(cache=True)
+def _window_mask(win, region, min_depth, max_depth) -> tuple:
+    """One pass over the box window ``win`` [h, w] float32 metres (0 = invalid) within ``region`` [h, w] bool (None:
+    all of it). Returns (gated [h, w] bool: valid and within [``min_depth``, ``max_depth``] (float32), counts [3]:
+    region, valid, gated pixels)."""
+    h, w = win.shape
+    gated = np.zeros((h, w), np.bool_)
+    counts = np.zeros(3, np.int64)
+    for r in range(h):
+        for c in range(w):
+            if region is not None and not region[r, c]:
+                continue
+            counts[0] += 1
+            v = win[r, c]
+            if not v > 0:
+                continue
+            counts[1] += 1
+            if min_depth <= v <= max_depth:
+                gated[r, c] = True
+                counts[2] += 1
+    return gated, counts
+
+
+@njit(cache=True)
+def _above_plane(win, valid, ry, cx, off, plane_height) -> tuple:
+    """(above [h, w] bool: the ``valid`` window pixels higher than ``plane_height`` above the plane whose heights
+    ``_plane_heights`` separates (ry [h], cx [w], off), computed in float32; their count)."""
+    h, w = win.shape
+    above = np.zeros((h, w), np.bool_)
+    n = 0
+    for r in range(h):
+        for c in range(w):
+            if valid[r, c] and win[r, c] * np.float32(ry[r] + cx[c]) + off > plane_height:
+                above[r, c] = True
+                n += 1
+    return above, n
+
+
+@njit(cache=True)
+def _lattice_pixels(valid, s, y0, x0) -> tuple:
+    """(rows [P], cols [P]) int64 frame pixels of the ``valid`` [h, w] window pixels on every ``s``-th row and column,
+    row-major; the window starts at frame pixel (``y0``, ``x0``)."""
+    h, w = valid.shape
+    n = 0
+    for r in range(0, h, s):
+        for c in range(0, w, s):
+            n += valid[r, c]
+    rows, cols = np.empty(n, np.int64), np.empty(n, np.int64)
+    k = 0
+    for r in range(0, h, s):
+        for c in range(0, w, s):
+            if valid[r, c]:
+                rows[k], cols[k] = r + y0, c + x0
+                k += 1
+    return rows, cols
+
+
+@njit(cache=True)
+def _backproject(d, rows, cols, K):
+    """[P, 3] float64 metres: the pixels (``rows``, ``cols``) [P] of the depth frame ``d`` [H, W] metres through the
+    pinhole ``K`` [3, 3] (with skew)."""
+    pts = np.empty((len(rows), 3))
+    for p in range(len(rows)):
+        z = np.float64(d[rows[p], cols[p]])
+        r, c = rows[p], cols[p]
+        pts[p, 0] = (c - K[0, 2] - K[0, 1] * (r - K[1, 2]) / K[1, 1]) * z / K[0, 0]
+        pts[p, 1] = (r - K[1, 2]) * z / K[1, 1]
+        pts[p, 2] = z
+    return pts
 
 
 # ----------------------------------------------------------------------------------------------------------------------
@@ -189,19 +288,17 @@ def crop_points(depth, K, *, box=None, mask=None, depth_unit="mm", image_size=No
     if box is not None:
         x0, y0, x1, y1 = check_box(box, (H, W))
     win = d[y0:y1, x0:x1]                                                       # [h, w] the box window (a view)
-    region = np.ones(win.shape, dtype=bool)                                     # [h, w]
+    region = None
     if mask is not None:
-        region &= check_mask(mask, (H, W))[y0:y1, x0:x1]
+        region = check_mask(mask, (H, W))[y0:y1, x0:x1]                         # [h, w]
         if not region.any():
             raise RegionError("the mask and the box do not overlap; pass a box that contains the mask")
-    diag = {"region": int(region.sum())}
-    valid = region & (win > 0)                                                  # [h, w]
-    diag["valid"] = int(valid.sum())
+    valid, counts = _window_mask(win, region, np.float32(min_depth), np.float32(max_depth))  # [h, w], [3]
+    diag = {"region": int(counts[0]), "valid": int(counts[1])}
     if diag["valid"] == 0:
         raise EmptyDepthError(f"no valid depth inside the region ({diag['region']} pixels); the object may be too close, "
                               "too far, or too dark/shiny for the depth camera — check the box/mask and the depth frame")
-    valid &= (win >= min_depth) & (win <= max_depth)
-    diag["gated"] = int(valid.sum())
+    diag["gated"] = n_valid = int(counts[2])
     if diag["gated"] < min_points:
         raise TooFewPointsError(f"{diag['gated']} valid pixels within {min_depth}–{max_depth} m in the region (need "
                                 f"≥ {min_points}); enlarge the box/mask or change min_depth/max_depth")
@@ -210,37 +307,27 @@ def crop_points(depth, K, *, box=None, mask=None, depth_unit="mm", image_size=No
     if remove_support_plane:
         plane = support_plane if support_plane is not None else find_support_plane(d, Kf)
         if plane is not None:
-            n, off = plane
-            # height above the plane of every window pixel: z · (n · ray(row, col)) + off, the ray term separable
-            cx = (np.arange(x0, x1, dtype=np.float32) - Kf[0, 2]) / Kf[0, 0] * n[0]     # [w]
-            ry = (np.arange(y0, y1, dtype=np.float32) - Kf[1, 2]) / Kf[1, 1] * n[1] + n[2]  # [h]
-            h = win * (ry[:, None] + cx[None, :]).astype(np.float32) + np.float32(off)  # [h, w] m
-            above = valid & (h > plane_height)                                  # [h, w]
-            n_above = int(np.count_nonzero(above))
+            above, n_above = _above_plane(win, valid, *_plane_heights(plane, Kf, x0, y0, x1, y1),
+                                          np.float32(plane_height))             # [h, w], count
             if n_above >= min_points:
-                valid = above
-                diag["above_plane"] = n_above
+                valid, n_valid = above, int(n_above)
+                diag["above_plane"] = n_valid
     s = 1                                                                       # grid pitch of the kept pixels
-    n_valid = int(np.count_nonzero(valid))
     if n_valid > max_points:                                                    # regular grid, deterministic
         s = int(math.ceil(math.sqrt(n_valid / max_points)))
         if np.count_nonzero(valid[::s, ::s]) < min_points:                      # pathological sparse layouts
             rows, cols = np.nonzero(valid)
             keep = np.zeros(len(rows), bool)
             keep[:: int(math.ceil(len(rows) / max_points))] = True
-            rows, cols = rows[keep], cols[keep]
+            rows, cols = rows[keep] + y0, cols[keep] + x0                       # frame pixels
             s = 0                                                               # not a grid any more
         else:
-            rows, cols = np.nonzero(valid[::s, ::s])                            # [P] on the lattice
-            rows, cols = rows * s, cols * s
+            rows, cols = _lattice_pixels(valid, s, y0, x0)                      # [P] frame pixels on the lattice
     else:
-        rows, cols = np.nonzero(valid)                                          # [P], [P] in the window
-    rows, cols = rows + y0, cols + x0                                           # frame pixels
+        rows, cols = _lattice_pixels(valid, 1, y0, x0)                          # [P], [P] frame pixels
     diag["subsampled"] = int(len(rows))
-    z = d[rows, cols].astype(np.float64)                                        # [P]
-    x = (cols - Kf[0, 2] - Kf[0, 1] * (rows - Kf[1, 2]) / Kf[1, 1]) * z / Kf[0, 0]
-    y = (rows - Kf[1, 2]) * z / Kf[1, 1]
-    pts = np.stack([x, y, z], axis=1)                                           # [P, 3] m
+    pts = _backproject(d, rows, cols, Kf)                                       # [P, 3] float64 m
+    z = pts[:, 2]                                                               # [P]
     if reject_background is None:
         reject_background = box is not None and mask is None
     if reject_background:
@@ -261,7 +348,7 @@ def crop_points(depth, K, *, box=None, mask=None, depth_unit="mm", image_size=No
             keep = nearest_depth_cluster(z)                                     # [P]
         pts, rows, cols = pts[keep], rows[keep], cols[keep]
         diag["cluster"] = int(keep.sum())
-        diag["cluster_depth_m"] = float(np.median(pts[:, 2]))
+        diag["cluster_depth_m"] = float(median(pts[:, 2]))
     if outlier_std and outlier_std > 0:
         if s and outlier_k == 8:                                                # organized: the 8 grid neighbours
             keep = organized_outlier_mask(pts, rows - y0, cols - x0, step=s, std_ratio=outlier_std)  # [P]

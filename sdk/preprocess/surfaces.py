@@ -12,6 +12,8 @@ import math
 import numpy as np
 from numba import njit
 
+from equipose.core.order_statistics import sorted_median, sorted_percentile
+
 __all__ = ["nearest_depth_cluster", "depth_clusters", "surface_segments", "box_object_cluster", "occluded_fraction"]
 
 
@@ -234,24 +236,6 @@ def _choose_cluster(rows, cols, box, labels, min_fraction, border):
 
 
 @njit(cache=True)
-def _percentile(sorted_values, q):
-    """numpy's default (linear) percentile ``q`` of ascending ``sorted_values`` [n]."""
-    v = (len(sorted_values) - 1) * (q / 100.0)
-    lo = int(np.floor(v))
-    hi = min(lo + 1, len(sorted_values) - 1)
-    gamma = v - lo
-    a, b = sorted_values[lo], sorted_values[hi]
-    return b - (b - a) * (1.0 - gamma) if gamma >= 0.5 else a + (b - a) * gamma
-
-
-@njit(cache=True)
-def _median(values):
-    s = np.sort(values)
-    n = len(s)
-    return s[n // 2] if n % 2 else (s[n // 2 - 1] + s[n // 2]) / 2.0
-
-
-@njit(cache=True)
 def _radius(points, members):
     """Robust radius (m) of the ``members`` [P] bool of ``points`` [P, 3]: the 95th percentile distance from the centre
     of their 2–98 % box (a partial view's median lies off the object's centre, towards the camera)."""
@@ -259,12 +243,12 @@ def _radius(points, members):
     centre = np.empty(3)
     for a in range(3):
         s = np.sort(sel[:, a])
-        centre[a] = 0.5 * (_percentile(s, 2.0) + _percentile(s, 98.0))
+        centre[a] = 0.5 * (sorted_percentile(s, 2.0) + sorted_percentile(s, 98.0))
     d = np.empty(len(sel))
     for m in range(len(sel)):
         dx, dy, dz = sel[m, 0] - centre[0], sel[m, 1] - centre[1], sel[m, 2] - centre[2]
         d[m] = np.sqrt(dx * dx + dy * dy + dz * dz)
-    return _percentile(np.sort(d), 95.0)
+    return sorted_percentile(np.sort(d), 95.0)
 
 
 @njit(cache=True)
@@ -286,7 +270,7 @@ def _boundary_jumps(labels, n_labels, z, cut_i, cut_j, inside):
     for seg in range(n_labels):
         sel = owner[:m] == seg
         if sel.any():
-            out[seg] = _median(diffs[:m][sel])
+            out[seg] = sorted_median(np.sort(diffs[:m][sel]))
     return out
 
 
@@ -334,7 +318,7 @@ def _choose_surface(z, rows, cols, box, labels, cut_i, cut_j, points, focal, min
     for k in range(len(big)):
         seg = big[k]
         keep, jumps = _grow(seg, labels, n_labels, z, cut_i, cut_j, points,
-                            half_diag_px * _median(z[labels == seg]) / focal)
+                            half_diag_px * sorted_median(np.sort(z[labels == seg])) / focal)
         n, offset2 = _centre_offset2(keep, rows, cols, cx, cy, hw, hh)
         c_lo, c_hi, r_lo, r_hi = cols.max(), cols.min(), rows.max(), rows.min()
         for p in range(P):

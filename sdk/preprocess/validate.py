@@ -16,9 +16,11 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from numba import njit
 
 from equipose.core.errors import (DepthDtypeError, DepthUnitError, EmptyDepthError, InvalidPointsError,
                                    RegionError)
+from equipose.core.order_statistics import median
 # the intrinsics check lives in the core (sources use it too); re-exported here as part of preprocess's API
 from equipose.core.intrinsics import CENTRE_TOLERANCE, FOCAL_RANGE, check_intrinsics  # noqa: F401
 
@@ -69,10 +71,10 @@ def depth_to_metres(depth, depth_unit="mm", *, check_plausible: bool = True) -> 
     if depth.dtype == np.bool_ or not (np.issubdtype(depth.dtype, np.integer) or np.issubdtype(depth.dtype, np.floating)):
         raise DepthDtypeError(f"depth dtype {depth.dtype} is not numeric; pass uint16 millimetres or float metres")
     scale = _unit_scale(depth_unit)
-    d = np.multiply(depth, np.float32(scale), dtype=np.float32)                 # [H, W] metres
     if np.issubdtype(depth.dtype, np.unsignedinteger):                          # finite, ≥ 0, 0 stays 0
-        n_valid = int(np.count_nonzero(depth))                                  # (counting the integers is faster)
+        d, n_valid = _unsigned_to_metres(depth, np.float32(scale))              # [H, W] metres, one compiled pass
     else:
+        d = np.multiply(depth, np.float32(scale), dtype=np.float32)             # [H, W] metres
         d[~(np.isfinite(d) & (d > 0))] = 0.0                                    # [H, W] invalid → 0
         n_valid = int(np.count_nonzero(d))
     if n_valid == 0:
@@ -81,7 +83,7 @@ def depth_to_metres(depth, depth_unit="mm", *, check_plausible: bool = True) -> 
     if check_plausible:
         sub = d[::8, ::8]                                                       # unit check on a 1/64 lattice
         sub = sub[sub > 0]
-        med = float(np.median(sub if sub.size else d[d > 0]))                  # sparse frames: every valid pixel
+        med = median(sub if sub.size else d[d > 0])                             # sparse frames: every valid pixel
         lo, hi = PLAUSIBLE_DEPTH_M
         if not lo <= med <= hi:
             raw = med / scale
@@ -95,6 +97,20 @@ def depth_to_metres(depth, depth_unit="mm", *, check_plausible: bool = True) -> 
                 f"plausible {lo}–{hi} m{hint}. Declare the unit the frame really uses (depth_unit='mm', 'm' or metres "
                 "per unit as a number)")
     return d
+
+
+@njit(cache=True)
+def _unsigned_to_metres(depth, scale):
+    """(``depth`` [H, W] unsigned ints × ``scale`` as float32 metres [H, W], the number of non-zero pixels)."""
+    H, W = depth.shape
+    d = np.empty((H, W), np.float32)
+    n = 0
+    for r in range(H):
+        for c in range(W):
+            v = depth[r, c]
+            d[r, c] = np.float32(v) * scale
+            n += v != 0
+    return d, n
 
 
 def check_box(box, shape) -> tuple:

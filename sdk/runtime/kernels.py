@@ -42,7 +42,7 @@ def load_kernels() -> float:
     from equipose.core.neighbours import NearestNeighbours
     from equipose.core.normals import point_normals
     from equipose.core.scores import hypothesis_scores
-    from equipose.preprocess.crop import organized_outlier_mask
+    from equipose.preprocess.crop import crop_points, organized_outlier_mask
     from equipose.preprocess.plane import find_support_plane, fit_plane_ransac
     from equipose.preprocess.surfaces import box_object_cluster, surface_segments
     from equipose.runtime.frame_priors import mirror_plane
@@ -71,6 +71,12 @@ def load_kernels() -> float:
     box_object_cluster(z, grid // 4, grid % 4, (0, 0, 4, 4))                   # depth clusters, then surfaces
     box_object_cluster(z, grid // 4, grid % 4, (0, 0, 4, 4), labels=labels, cut=cut, points=np.c_[x[:16, :2], z],
                        focal=100.0)
+    depth = np.full((48, 64), 900, np.uint16)                                   # a frame: a box on a wall
+    depth[12:36, 16:48] = 700
+    Kd = np.array([[60.0, 0.0, 32.0], [0.0, 60.0, 24.0], [0.0, 0.0, 1.0]])
+    plane = (np.array([0.0, 0.0, -1.0]), 0.9)                                   # the wall
+    for region in ({"box": (8, 8, 48, 32)}, {"box": (8, 8, 48, 32), "mask": depth < 800}, {"mask": depth < 800}):
+        crop_points(depth, Kd, **region, support_plane=plane, max_points=256, min_points=8)
     mirror_plane(x, [1.0, 0.0, 0.0])
     point_normals(x)
     fit_handle(rng.normal(size=(60, 3)))
