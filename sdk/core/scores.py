@@ -18,6 +18,7 @@ import numpy as np
 from numba import njit
 
 from equipose.core.errors import InvalidPointsError
+from equipose.core.parallel import run_parts, split_ranges, workers
 
 __all__ = ["hypothesis_scores"]
 
@@ -84,7 +85,14 @@ def hypothesis_scores(points: np.ndarray, shape: np.ndarray, R: np.ndarray, t: n
                                  f"{t.shape}; shape {shape.shape}")
     if 0 < score_points < points.shape[1]:
         points = points[:, :score_points]                                       # [B, N', 3]
-    out = np.empty((B, R.shape[1]), np.float32)                                 # [B, J]
-    _scores(np.ascontiguousarray(points), np.ascontiguousarray(shape), np.ascontiguousarray(R),
-            np.ascontiguousarray(t), bool(bidirectional), out)
+    points, shape = np.ascontiguousarray(points), np.ascontiguousarray(shape)
+    parts = split_ranges(R.shape[1], workers())                                # hypotheses [a, b) per part
+    outs = run_parts(_part_scores, [(points, shape, np.ascontiguousarray(R[:, a:b]), np.ascontiguousarray(t[:, a:b]),
+                                     bool(bidirectional)) for a, b in parts])  # side by side (core.parallel)
+    return outs[0] if len(outs) == 1 else np.concatenate(outs, axis=1)         # [B, J]
+
+
+def _part_scores(points, shape, R, t, bidirectional) -> np.ndarray:
+    out = np.empty(R.shape[:2], np.float32)                                     # [B, J']
+    _scores(points, shape, R, t, bidirectional, out)
     return out

@@ -9,6 +9,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 
 from equipose.core.errors import InvalidPointsError, TooFewPointsError
 from equipose.core.geometry import farthest_point_order
@@ -54,7 +55,7 @@ def check_spread(points_model: np.ndarray, centre_m: np.ndarray, scale: float) -
     must not be a line (second principal axis ≥ ``MIN_FLATNESS`` × the first; planar views are fine) and the centre
     must be nearer than ``PLAUSIBLE_DEPTH_M[1]``. Raises ``InvalidPointsError``.
     """
-    radius = float(np.sqrt(np.mean(np.einsum("ij,ij->i", points_model, points_model))))
+    radius, scatter = _spread(np.ascontiguousarray(points_model, np.float64))   # RMS radius, [3, 3] Σ x xᵀ
     dist = float(np.linalg.norm(centre_m))
     if dist > PLAUSIBLE_DEPTH_M[1] or radius > SPREAD_RANGE[1]:
         raise InvalidPointsError(
@@ -65,7 +66,7 @@ def check_spread(points_model: np.ndarray, centre_m: np.ndarray, scale: float) -
         raise InvalidPointsError(
             f"the points span only {radius * scale:.3g} m (RMS radius) while this model expects objects of about "
             f"{scale:.3g} m: the cloud is degenerate (a point, or wrongly scaled) — check the crop and the units")
-    sv = np.sqrt(np.clip(np.linalg.eigvalsh(points_model.T @ points_model), 0, None))[::-1]  # [3] principal spreads
+    sv = np.sqrt(np.clip(np.linalg.eigvalsh(scatter), 0, None))[::-1]         # [3] principal spreads
     if sv[1] < MIN_FLATNESS * sv[0]:
         raise InvalidPointsError(f"the points lie on a line (principal spreads {np.round(sv * scale, 6).tolist()} m); "
                                  "a pose needs a surface — check the crop or the point source")
@@ -101,16 +102,57 @@ def prepare_points(points_m, num_points: int, scale: float, *, min_points: int =
     if P > max_fps_input:
         base = base[:: int(math.ceil(P / max_fps_input))]                       # [P'] regular thinning
     q = p[base]                                                                 # [P', 3]
-    centre = q.mean(axis=0)                                                     # [3] m
-    qc64 = (q - centre) / float(scale)                                          # [P', 3] model units
+    centre, qc64, qc, start = _centre(q, float(scale))                         # [3] m, [P', 3] model units (f64, f32)
     check_spread(qc64, centre, float(scale))
-    qc = qc64.astype(np.float32)                                                # [P', 3]
-    start = int(np.argmax(np.einsum("ij,ij->i", qc, qc)))
-    idx = fps_order(qc, int(num_points), start=start)                          # [N]
-    head = qc[idx[:MIN_DISTINCT]].astype(np.float64)                            # FPS picks distinct points first
-    gaps = np.linalg.norm(head[:, None] - head[None], axis=2) + np.eye(len(head))
-    if len(head) == MIN_DISTINCT and gaps.min() <= 1e-9:
+    idx = fps_order(qc, int(num_points), start=start)                          # [N], from the farthest point
+    if len(idx) >= MIN_DISTINCT and _repeated(qc, idx[:MIN_DISTINCT]):        # FPS picks distinct points first
         raise InvalidPointsError(f"the {P} points hold fewer than {MIN_DISTINCT} distinct positions (repeated points); "
                                  "a pose needs the object's surface — check the crop or the point source")
     return PreparedPoints(model_points=np.ascontiguousarray(qc[idx]), centre_m=centre, scale=float(scale),
                           order=base[idx], cloud=qc)
+
+
+@njit(cache=True)
+def _centre(q, scale) -> tuple:
+    """(centroid [3] of ``q`` [P, 3] metres, (q − centroid) / ``scale`` [P, 3] float64 and float32, the index of the
+    float32 point farthest from the centroid)."""
+    P = len(q)
+    centre = np.zeros(3)
+    for i in range(P):                                                          # row by row, as numpy's mean(0)
+        for a in range(3):
+            centre[a] += q[i, a]
+    centre /= P
+    qc64, qc = np.empty((P, 3)), np.empty((P, 3), np.float32)
+    start, far = 0, np.float32(-1.0)
+    for i in range(P):
+        for a in range(3):
+            qc64[i, a] = (q[i, a] - centre[a]) / scale
+            qc[i, a] = qc64[i, a]
+        r2 = qc[i, 0] * qc[i, 0] + qc[i, 1] * qc[i, 1] + qc[i, 2] * qc[i, 2]     # float32
+        if r2 > far:
+            start, far = i, r2
+    return centre, qc64, qc, start
+
+
+@njit(cache=True)
+def _spread(x) -> tuple:
+    """(RMS radius, scatter Σ x xᵀ [3, 3]) of the centred points ``x`` [P, 3] float64."""
+    S = np.zeros((3, 3))
+    for i in range(len(x)):
+        for a in range(3):
+            for b in range(3):
+                S[a, b] += x[i, a] * x[i, b]
+    return np.sqrt((S[0, 0] + S[1, 1] + S[2, 2]) / len(x)), S
+
+
+@njit(cache=True)
+def _repeated(qc, head) -> bool:
+    """Whether two of the points ``qc[head]`` coincide (within 1e-9)."""
+    for a in range(len(head)):
+        for b in range(a + 1, len(head)):
+            d = 0.0
+            for k in range(3):
+                d += (np.float64(qc[head[a], k]) - np.float64(qc[head[b], k])) ** 2
+            if np.sqrt(d) <= 1e-9:
+                return True
+    return False

@@ -214,7 +214,8 @@ class PoseEstimator:
             raise ModelFormatError(f"onnxruntime could not run {self.path.name} on input {x.shape} "
                                    f"({type(e).__name__}: {str(e).splitlines()[0][:200]}); the model file may be "
                                    "damaged or not follow the equipose contract — re-export it") from None
-        return io.complete(dict(zip(io.outputs, outs)), x)                     # (+ hypothesis scores)
+        with kernel_workers(self.workers):                                      # (+ hypothesis scores, in parts)
+            return io.complete(dict(zip(io.outputs, outs)), x)
 
     def _finish(self, outputs: dict, b: int, prep: "_crop.PreparedPoints", *, prefer: int | None = None,
                 prefer_margin: float = 0.0, up=None, crop: dict | None = None) -> tuple:

@@ -44,6 +44,7 @@ def load_kernels() -> float:
     from equipose.core.scores import hypothesis_scores
     from equipose.preprocess.crop import crop_points, organized_outlier_mask
     from equipose.preprocess.plane import find_support_plane, fit_plane_ransac
+    from equipose.preprocess.sampling import prepare_points
     from equipose.preprocess.surfaces import box_object_cluster, surface_segments
     from equipose.runtime.frame_priors import mirror_plane
 
@@ -62,6 +63,7 @@ def load_kernels() -> float:
     layers = (LayerSpec(1, 4, 40, 8, 0.5, 0.1, 0.3, 4), LayerSpec(4, 4, 8, 8, 0.5, 0.1, 0.3, 4))
     x32 = x[None].astype(np.float32)
     kernel_inputs(x32, layers, neighbourhoods(x32, neighbourhood_specs(layers)))
+    prepare_points(x, 16, 1.0, min_points=8)
     fit_plane_ransac(np.c_[x[:, :2], np.zeros(len(x))])                        # a plane: the refit runs too
     find_support_plane(np.ones((8, 8), np.float32), np.array([[4.0, 0, 4], [0, 4.0, 4], [0, 0, 1]]), grid=1)
     grid = np.arange(16)
