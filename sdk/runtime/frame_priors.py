@@ -36,11 +36,12 @@ from equipose.core.parallel import run_parts, split_ranges, workers
 from equipose.core.metadata import FRAME_PRIOR_STEPS
 from equipose.runtime.rest_facet import rest_facet_up
 
-__all__ = ["FRAME_PRIOR_STEPS", "MAX_DEG", "MIRROR_ITERS", "parse_steps", "mirror_plane", "footprint_yaw",
+__all__ = ["FRAME_PRIOR_STEPS", "MAX_DEG", "MIRROR_ITERS", "MIRROR_STEP", "parse_steps", "mirror_plane", "footprint_yaw",
            "apply_frame_priors"]
 
 MAX_DEG = 20.0                  # default bound on how far a step may turn the pose
-MIRROR_ITERS = 15
+MIRROR_ITERS = 8
+MIRROR_STEP = 2.0               # each update after the first goes this many times its own step (over-relaxation)
 _MIRROR_TRIM = 0.8              # pairs kept per iteration (the closest): asymmetric parts drop out
 _AXES = {"x": 0, "y": 1, "z": 2}
 
@@ -118,7 +119,7 @@ def _centroid_offset(X, n) -> float:
     return X[:, 0].mean() * n[0] + X[:, 1].mean() * n[1] + X[:, 2].mean() * n[2]
 
 
-def _mirror_iterations(X, n0, cos_max, iters, trim) -> tuple:
+def _mirror_iterations(X, n0, cos_max, iters, trim, step) -> tuple:
     """The iterations of ``mirror_plane`` on the cloud ``X`` [P, 3] float64: (normal [3], offset, mean squared
     reflection residual). The reflect-and-pair pass (the cost: one nearest-neighbour query per point) runs in parts
     side by side (``equipose.core.parallel``: the caller's ``kernel_workers`` scope); the result does not depend on
@@ -132,32 +133,42 @@ def _mirror_iterations(X, n0, cos_max, iters, trim) -> tuple:
 
     n = n0.copy()
     d = _centroid_offset(X, n0)
-    for _ in range(iters):
+    for k in range(iters):
         reflect_and_pair(n, d)
         cand, d_new, cos0 = _plane_from_pairs(X, pair, d2, n, n0, trim)
         if cos0 < cos_max:
             break
         if d_new == d and np.all(cand == n):                                  # a fixed point: every further
             break                                                             # iteration repeats this one
+        if k > 0 and step != 1.0:                     # the plane creeps in one direction: go ``step`` times as far
+            ext = n + step * (cand - n)
+            ext /= np.linalg.norm(ext)
+            if ext @ n0 >= cos_max:                                           # within the bound
+                cand, d_new = ext, d + step * (d_new - d)
         n, d = cand, d_new
     reflect_and_pair(n, d)
     return n, d, d2.mean()
 
 
-def mirror_plane(points, normal, max_deg: float = MAX_DEG, iters: int = MIRROR_ITERS) -> tuple:
+def mirror_plane(points, normal, max_deg: float = MAX_DEG, iters: int = MIRROR_ITERS, step: float = MIRROR_STEP
+                 ) -> tuple:
     """Mirror plane of ``points`` near the plane through their centroid with unit normal ``normal`` [3].
 
     Each iteration reflects the cloud, pairs every point with its nearest neighbour among the reflections' sources
     (the closest ``_MIRROR_TRIM`` of pairs), and takes the new normal as the dominant direction of the pair differences
-    and the offset from their midpoints. Stops before a step that would leave ``max_deg`` of ``normal``, and at a
-    fixed point (a step that returns the plane it started from). Compiled queries (``equipose.core.nearest``), in
+    and the offset from their midpoints. Like point-to-point ICP the plane creeps towards the fixed point by small
+    steps, so every update after the first is over-relaxed: the plane moves ``step`` times that update (where this
+    stays within the bound; chair and car, complete: the same 5° accuracy in about half the iterations). Stops before
+    a step that would leave ``max_deg`` of ``normal``, and at a fixed point (a step that returns the plane it started
+    from). Compiled queries (``equipose.core.nearest``), in
     parts side by side.
     Returns (unit normal [3] signed like ``normal``, offset d with the plane n·x = d, mean squared reflection
     residual).
     """
     P = np.ascontiguousarray(points, np.float64)                             # [P, 3]
     n0 = np.asarray(normal, np.float64) / np.linalg.norm(normal)
-    n, d, residual = _mirror_iterations(P, n0, float(np.cos(np.radians(max_deg))), int(iters), float(_MIRROR_TRIM))
+    n, d, residual = _mirror_iterations(P, n0, float(np.cos(np.radians(max_deg))), int(iters), float(_MIRROR_TRIM),
+                                        float(step))
     return n, float(d), float(residual)
 
 

@@ -28,7 +28,7 @@ PROFILES: dict = {
                 "airplane-partial": {"flip": {"template_points": 128, "templates": 2}, "turn": {"points": 128},
                                      "rescore": {"iters": 15}},
                 "car-complete": {"upright": {"points": 64}, "rescore": {"iters": 10, "k": 4},
-                                 "frame_priors": {"mirror_iters": 5, "points": 1024}},
+                                 "frame_priors": {"mirror_iters": 3, "points": 1024}},
                 "chair-complete": {"frame_priors": {"points": 1024}, "rescore": {"k": 4}},
                 "sofa-complete": {"rescore": {"iters": 15, "k": 4}, "frame_priors": {"points": 1024}},
                 "bottle-complete": {"rescore": {"iters": 15, "k": 4}},
