@@ -21,6 +21,7 @@ import numpy as np
 from numba import njit
 
 from equipose.core.errors import InvalidPointsError
+from equipose.core.order_statistics import sorted_percentile, sorted_quantile
 
 __all__ = ["HandleFit", "fit_handle", "align_handle", "turn_about_z", "handle_zone_count", "handle_zone_mask", "HANDLE_MIN_POINTS",
            "HANDLE_MIN_FRACTION", "HANDLE_MIN_SHARE", "HANDLE_MIN_MASS"]
@@ -32,13 +33,16 @@ HANDLE_MIN_FRACTION = 0.01       # ... and at least this fraction of the observe
 
 
 def _height_bands(z: np.ndarray, bands: int) -> np.ndarray:
-    """[bands + 1] edges of equal-count height bands of ``z``."""
-    return np.quantile(z, np.linspace(0.0, 1.0, bands + 1))
+    """[bands + 1] edges of equal-count height bands of ``z`` (numpy's quantiles, compiled)."""
+    return _quantiles(np.sort(np.asarray(z, np.float64)), np.linspace(0.0, 1.0, bands + 1))
 
 
-def _band_of(z: np.ndarray, edges: np.ndarray) -> np.ndarray:
-    """[N] index of the height band of each ``z`` (values outside the edges go to the end bands)."""
-    return np.clip(np.searchsorted(edges, z) - 1, 0, len(edges) - 2)
+@njit(cache=True)
+def _quantiles(sorted_z, qs):
+    out = np.empty(len(qs))
+    for i in range(len(qs)):
+        out[i] = sorted_quantile(sorted_z, qs[i])
+    return out
 
 
 @dataclass(frozen=True)
@@ -163,17 +167,35 @@ def handle_zone_mask(observed_obj: np.ndarray, canonical_obj: np.ndarray, direct
     turn = turn_about_z(-np.arctan2(d[1], d[0]))                                     # handle direction → +x
     obs, can = obs @ turn.T, can @ turn.T
     fit = fit_handle(can)
-    c = np.asarray(fit.centre)
     edges = _height_bands(can[:, 2], 6)
-    vc = can[:, :2] - c
-    rc = np.linalg.norm(vc, axis=1)
-    off = np.degrees(np.abs(np.arctan2(vc[:, 1], vc[:, 0]))) > 40.0                # canonical points away from the handle
-    band_c = _band_of(can[:, 2], edges)
-    sel = [off & (band_c == k) for k in range(6)]
-    body = np.array([np.percentile(rc[m], 90) if m.sum() >= 3 else np.percentile(rc[off], 90) for m in sel])
-    inside_h = (obs[:, 2] >= edges[0]) & (obs[:, 2] <= edges[-1])
-    band_o = _band_of(obs[:, 2], edges)
-    v = obs[:, :2] - c
-    r = np.linalg.norm(v, axis=1)
-    az = np.degrees(np.abs(np.arctan2(v[:, 1], v[:, 0])))
-    return inside_h & (r > 1.15 * body[band_o]) & (az < 40.0)
+    return _zone_mask(obs, can, edges, float(fit.centre[0]), float(fit.centre[1]))
+
+
+@njit(cache=True)
+def _zone_mask(obs, can, edges, cx, cy):
+    """``handle_zone_mask`` of ``obs`` [P, 3] against ``can`` [M, 3], both turned so the handle lies along +x, with
+    the canonical height band ``edges`` [B + 1] and the body axis at (``cx``, ``cy``)."""
+    bands = len(edges) - 1
+    M = len(can)
+    rc, off = np.empty(M), np.empty(M, np.bool_)
+    band_c = np.searchsorted(edges, can[:, 2]) - 1
+    for i in range(M):
+        vx, vy = can[i, 0] - cx, can[i, 1] - cy
+        rc[i] = np.sqrt(vx * vx + vy * vy)
+        off[i] = np.degrees(abs(np.arctan2(vy, vx))) > 40.0                  # canonical points away from the handle
+        band_c[i] = min(max(band_c[i], 0), bands - 1)
+    body = np.empty(bands)                     # per band: 90th percentile radius of the points away from the handle
+    for k in range(bands):
+        sel = rc[off & (band_c == k)]
+        if len(sel) < 3:
+            sel = rc[off]
+        body[k] = sorted_percentile(np.sort(sel), 90.0) if len(sel) else np.nan
+    band_o = np.searchsorted(edges, obs[:, 2]) - 1
+    out = np.empty(len(obs), np.bool_)
+    for i in range(len(obs)):
+        b = min(max(band_o[i], 0), bands - 1)
+        vx, vy = obs[i, 0] - cx, obs[i, 1] - cy
+        r = np.sqrt(vx * vx + vy * vy)
+        az = np.degrees(abs(np.arctan2(vy, vx)))
+        out[i] = edges[0] <= obs[i, 2] <= edges[-1] and r > 1.15 * body[b] and az < 40.0
+    return out

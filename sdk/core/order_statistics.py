@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-__all__ = ["median", "sorted_percentile", "sorted_median"]
+__all__ = ["median", "sorted_percentile", "sorted_quantile", "sorted_median"]
 
 
 def median(values: np.ndarray) -> float:
@@ -26,7 +26,13 @@ def sorted_median(sorted_values):
 @njit(cache=True)
 def sorted_percentile(sorted_values, q):
     """numpy's default (linear) percentile ``q`` of ascending ``sorted_values`` [n], n ≥ 1."""
-    v = (len(sorted_values) - 1) * (q / 100.0)
+    return sorted_quantile(sorted_values, q / 100.0)
+
+
+@njit(cache=True)
+def sorted_quantile(sorted_values, q):
+    """numpy's default (linear) quantile ``q`` in [0, 1] of ascending ``sorted_values`` [n], n ≥ 1."""
+    v = (len(sorted_values) - 1) * q
     lo = int(np.floor(v))
     hi = min(lo + 1, len(sorted_values) - 1)
     gamma = v - lo
