@@ -57,9 +57,11 @@ def symmetric_distance_deg(R_ref, R_all, symmetry: str = "none") -> np.ndarray:
     if kind == "continuous":
         c = np.clip(R_all[:, :, axis] @ R_ref[:, axis], -1.0, 1.0)              # [A]
         return np.degrees(np.arccos(c))
-    syms = _axis_rotations(axis, order) if kind == "discrete" else np.eye(3)[None]  # [S, 3, 3]
-    eq = R_all[:, None] @ syms[None]                                            # [A, S, 3, 3]
-    tr = np.einsum("asij,ij->as", eq, R_ref)                                    # [A, S] trace(R_ref^T · eq)
+    if kind == "none":
+        tr = np.einsum("aij,ij->a", R_all, R_ref)                               # [A] trace(R_refᵀ R)
+        return np.degrees(np.arccos(np.clip((tr - 1.0) / 2.0, -1.0, 1.0)))
+    eq = R_all[:, None] @ _axis_rotations(axis, order)[None]                    # [A, S, 3, 3]
+    tr = np.einsum("asij,ij->as", eq, R_ref)                                    # [A, S] trace(R_refᵀ · eq)
     c = np.clip((tr - 1.0) / 2.0, -1.0, 1.0)
     return np.degrees(np.arccos(c)).min(axis=1)                                 # [A]
 

@@ -110,13 +110,14 @@ def view_rescore(prep, template: np.ndarray, rotations: np.ndarray, translations
     t = np.asarray(translations, np.float64)
     s = np.asarray(scores, np.float64)
     order = np.argsort(s, kind="stable")[: max(1, int(k))]                     # [k] best first
-    heads, member = [], {}
-    for i in order:
-        near = [h for h in heads if symmetric_distance_deg(R[h], R[i][None], symmetry)[0] <= merge_deg]
+    heads, member, near_head = [], {}, {}                  # near_head[h]: [k] bool, the ranked poses within merge_deg
+    for n, i in enumerate(order):
+        near = [h for h in heads if near_head[h][n]]
         if near:
             member[int(i)] = near[0]
         else:
             heads.append(int(i))
+            near_head[int(i)] = symmetric_distance_deg(R[i], R[order], symmetry) <= merge_deg   # [k]
     viewpoint = -np.asarray(prep.centre_m, np.float64) / float(prep.scale)
     v = view_residuals(prep.model_points, template, R[heads], t[heads], viewpoint, exponent)   # [H]
     v[0] *= 1.0 - float(margin)                                                 # the incumbent's benefit of doubt
