@@ -29,7 +29,7 @@ PROFILES: dict = {
                                      "rescore": {"iters": 15}},
                 "car-complete": {"upright": {"points": 64}, "rescore": {"iters": 10, "k": 4},
                                  "frame_priors": {"mirror_iters": 3, "points": 1024}},
-                "chair-complete": {"frame_priors": {"points": 1024}, "rescore": {"k": 4}},
+                "chair-complete": {"frame_priors": {"points": 1024}, "rescore": {"k": 4, "points": 128}},
                 "sofa-complete": {"rescore": {"iters": 15, "k": 4}, "frame_priors": {"points": 1024}},
                 "bottle-complete": {"rescore": {"iters": 15, "k": 4}},
                 "bottle-partial": {"rescore": {"iters": 15, "k": 4}},
