@@ -193,7 +193,7 @@ def icp_multi(observed: np.ndarray, template: np.ndarray, R0: np.ndarray, t0: np
     Y = np.ascontiguousarray(Y[None] if Y.ndim == 2 else Y)                     # [T, M, 3]
     if x.ndim != 2 or x.shape[1] != 3 or len(x) < 3 or Y.ndim != 3 or Y.shape[2] != 3 or Y.shape[1] < 3:
         raise InvalidPointsError(f"ICP needs [N≥3, 3] point arrays, got {x.shape} and {np.shape(template)}")
-    R, t = np.array(R0, np.float64), np.array(t0, np.float64)
+    R, t = np.array(R0, np.float64, order="C"), np.array(t0, np.float64, order="C")
     J = len(R)
     if R.shape != (J, 3, 3) or t.shape != (J, 3):
         raise InvalidPointsError(f"ICP starts must be R0 [J, 3, 3] and t0 [J, 3], got {R.shape}, {t.shape}")
@@ -300,7 +300,7 @@ def icp_point_to_plane(observed: np.ndarray, template: np.ndarray, normals: np.n
             nrm.shape != Y.shape[1:]:
         raise InvalidPointsError(f"point-to-plane ICP needs observed [N≥6, 3], template [M≥3, 3] and normals [M, 3], "
                                  f"got {x.shape}, {np.shape(template)}, {nrm.shape}")
-    R, t = np.array(R0, np.float64), np.array(t0, np.float64)
+    R, t = np.array(R0, np.float64, order="C"), np.array(t0, np.float64, order="C")
     J = len(R)
     if R.shape != (J, 3, 3) or t.shape != (J, 3):
         raise InvalidPointsError(f"ICP starts must be R0 [J, 3, 3] and t0 [J, 3], got {R.shape}, {t.shape}")

@@ -24,7 +24,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-__all__ = ["BRUTE_MAX_POINTS", "LEAF_SIZE", "build_index", "make_scratch", "nearest_brute", "nearest_tree",
+__all__ = ["BRUTE_MAX_POINTS", "LEAF_SIZE", "build_index", "make_scratch", "nearest_brute", "nearest_tree", "nearest_distances",
            "nearest_all"]
 
 BRUTE_MAX_POINTS = 512
@@ -205,3 +205,18 @@ def nearest_all(index, queries, guess, out) -> None:
             out[i] = nearest_tree(tpoints, ids, nodes, split, 0, q, g, stack, bound)
         else:
             out[i] = nearest_brute(soa, centre, 0, q, dist, bits)
+
+
+@njit(cache=True)
+def nearest_distances(points, queries, brute_max: int = BRUTE_MAX_POINTS):
+    """[Q] float64 distance from each of ``queries`` [Q, 3] to its nearest point of ``points`` [M ≥ 1, 3] (both
+    float64): ``NearestNeighbours(points).query(queries)[0]`` in one compiled call (the same search and pairs)."""
+    index = build_index(points.reshape(1, points.shape[0], 3), brute_max)
+    idx = np.empty(len(queries), np.int64)
+    nearest_all(index, queries, np.zeros(0, np.int64), idx)
+    out = np.empty(len(queries))
+    for i in range(len(queries)):
+        j = idx[i]
+        dx, dy, dz = queries[i, 0] - points[j, 0], queries[i, 1] - points[j, 1], queries[i, 2] - points[j, 2]
+        out[i] = np.sqrt(dx * dx + dy * dy + dz * dz)
+    return out

@@ -39,6 +39,7 @@ def load_kernels() -> float:
     from equipose.core.neighbourhoods import (NeighbourhoodSpec, nearest_neighbourhoods, neighbourhood_specs,
                                               neighbourhoods)
     from equipose.core.presets import LayerSpec
+    from equipose.core.nearest import nearest_distances
     from equipose.core.neighbours import NearestNeighbours
     from equipose.core.normals import point_normals
     from equipose.core.scores import hypothesis_scores
@@ -57,6 +58,8 @@ def load_kernels() -> float:
     icp_point_to_plane(x, x, np.tile([0.0, 0.0, 1.0], (len(x), 1)), np.eye(3)[None], np.zeros((1, 3)), iters=1)
     for brute_max in (0, 64):
         NearestNeighbours(x, brute_max=brute_max).query(x, guess=np.arange(len(x)))
+        nearest_distances(x, x, brute_max)
+    nearest_distances(x, x)                                                     # the SDK's calls: default size
     farthest_point_order(x, 8)
     hypothesis_scores(x[None], x[None], np.eye(3)[None, None], np.zeros((1, 1, 3)), bidirectional=True)
     nearest_neighbourhoods(x[None], NeighbourhoodSpec(support=40, centres=8, k=4, ordered=True))

@@ -26,7 +26,7 @@ import math
 
 import numpy as np
 
-from equipose.core.neighbours import NearestNeighbours
+from equipose.core.nearest import nearest_distances
 from equipose.runtime.stage import ObjectState, Stage, register_stage
 
 __all__ = ["ConfidenceStage", "FAR", "evidence", "logistic"]
@@ -44,10 +44,10 @@ def evidence(state: ObjectState) -> dict:
     shape = state.canonical_category if state.canonical_category is not None else state.canonical     # [M, 3]
     shape = np.asarray(shape, np.float64)
     rms = float(np.sqrt(np.mean(np.sum((shape - shape.mean(0)) ** 2, 1)))) or 1.0
-    posed = shape @ state.rotation.T + state.translation                        # [M, 3] input frame
-    x = np.asarray(state.points, np.float64)                                    # [N, 3]
-    d_obs, _ = NearestNeighbours(posed).query(x)                                # [N] input → shape
-    d_shape, _ = NearestNeighbours(x).query(posed)                              # [M] shape → input
+    posed = np.ascontiguousarray(shape @ state.rotation.T + state.translation)  # [M, 3] input frame
+    x = np.ascontiguousarray(state.points, np.float64)                          # [N, 3]
+    d_obs = nearest_distances(posed, x)                                         # [N] input → shape
+    d_shape = nearest_distances(x, posed)                                       # [M] shape → input
     crop = state.crop or {}
     n_crop = crop.get("inliers", len(x))
     handle = state.extras.get("handle_visible")
