@@ -23,14 +23,15 @@ FAST = {"copies": False, "rescore": False, "view": False, "polish": False, "rest
 PROFILES: dict = {
     "accurate": {"*": {}},
     "default": {"*": {},                             # per model: settings measured within noise of accurate
-                # (docs/benchmarks.md, v0.24, v0.28, v0.29: full test sets, fp32 and int8)
+                # (docs/benchmarks.md, v0.24, v0.28, v0.29, v0.32: full test sets, fp32 and int8)
                 "airplane-complete": {"flip": {"templates": 4}, "rescore": {"k": 4}},
                 "airplane-partial": {"flip": {"template_points": 128, "templates": 2}, "turn": {"points": 128},
                                      "rescore": {"iters": 15}},
                 "car-complete": {"upright": {"points": 64}, "rescore": {"iters": 8, "k": 4},
                                  "frame_priors": {"mirror_iters": 3, "points": 1024}},
                 "chair-complete": {"frame_priors": {"points": 1024}, "rescore": {"k": 4, "points": 128}},
-                "sofa-complete": {"rescore": {"iters": 10, "k": 3}, "frame_priors": {"points": 1024}, "upright": {"points": 64}},
+                "sofa-complete": {"rescore": {"iters": 10, "k": 3}, "frame_priors": {"points": 1024},
+                                  "upright": {"points": 64}},
                 "bottle-complete": {"rescore": {"iters": 15, "k": 3}},
                 "bottle-partial": {"rescore": {"iters": 15, "k": 4}},
                 "car-partial": {"polish": {"points": 2048}, "flip": {"templates": 2}},
@@ -38,7 +39,8 @@ PROFILES: dict = {
                 "can-tabletop": {"rescore": {"k": 4}},
                 "bowl-tabletop": {"rescore": {"k": 4}},
                 "sofa-partial": {"polish": {"points": 1024}, "rescore": {"points": 128}},
-                "chair-partial": {"rescore": {"iters": 15, "points": 128}, "polish": {"iters": 10, "points": 2048}, "view": {"k": 3}}},
+                "chair-partial": {"rescore": {"iters": 15, "points": 128}, "polish": {"iters": 10, "points": 2048},
+                                  "view": {"k": 3}}},
     "fast": {"*": FAST},
 }
 
