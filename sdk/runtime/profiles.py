@@ -39,7 +39,7 @@ PROFILES: dict = {
                 "can-tabletop": {"rescore": {"k": 4}},
                 "bowl-tabletop": {"rescore": {"k": 4}},
                 "sofa-partial": {"polish": {"points": 1024}, "rescore": {"points": 128}},
-                "chair-partial": {"rescore": {"iters": 15, "points": 128}, "polish": {"iters": 10, "points": 2048},
+                "chair-partial": {"rescore": {"iters": 15}, "polish": {"iters": 10, "points": 2048},
                                   "view": {"k": 3}}},
     "fast": {"*": FAST},
 }
