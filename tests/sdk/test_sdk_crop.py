@@ -232,3 +232,13 @@ def test_box_prompt_matches_the_mask_on_rendered_occluded_mugs(data_root):
         old.append(view.mask[tuple(cloud.pixels[keep].T)].mean())
     assert min(precision) > 0.95                                                 # the occluder stays out
     assert min(old) < 0.8                                                        # where depth clusters let it in
+
+
+@pytest.mark.parametrize("unit", ["mm", 1e-4, 0.000125])
+def test_unsigned_depth_converts_as_numpy_multiplies(rng, unit):
+    from equipose.preprocess import depth_to_metres
+    depth = rng.integers(0, 60000, (48, 64)).astype(np.uint16)
+    depth[rng.random(depth.shape) < 0.3] = 0
+    scale = np.float32(1e-3 if unit == "mm" else unit)
+    np.testing.assert_array_equal(depth_to_metres(depth, unit, check_plausible=False),
+                                  np.multiply(depth, scale, dtype=np.float32))

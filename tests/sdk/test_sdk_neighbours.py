@@ -26,6 +26,16 @@ def test_compiled_search_agrees_with_a_kdtree(rng, brute_max, M):
     assert d3.shape == i3.shape == (3, 4)
 
 
+@pytest.mark.parametrize("brute_max", [0, 10_000])
+def test_nearest_distances_are_the_query_distances(rng, brute_max):
+    from equipose.core.nearest import nearest_distances
+    P = rng.normal(size=(700, 3))
+    q = rng.normal(size=(300, 3))
+    d = nearest_distances(P, q, brute_max)
+    np.testing.assert_allclose(d, NearestNeighbours(P, brute_max=brute_max).query(q)[0], rtol=1e-15, atol=1e-15)
+    assert np.all(nearest_distances(P, P[:50], brute_max) == 0.0)                # every point is its own nearest
+
+
 def test_backend_errors():
     with pytest.raises(errors.ConfigError):
         NearestNeighbours(np.zeros((4, 3)), "faiss")
