@@ -24,8 +24,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-__all__ = ["BRUTE_MAX_POINTS", "LEAF_SIZE", "build_index", "make_scratch", "nearest_brute", "nearest_tree", "nearest_distances",
-           "nearest_all"]
+__all__ = ["BRUTE_MAX_POINTS", "LEAF_SIZE", "build_index", "make_scratch", "nearest_brute", "nearest_tree",
+           "nearest_distances", "nearest_all"]
 
 BRUTE_MAX_POINTS = 512
 LEAF_SIZE = 8

@@ -165,7 +165,8 @@ def box_object_cluster(z: np.ndarray, rows: np.ndarray, cols: np.ndarray, box, m
     else:
         labels = depth_clusters(z) if labels is None else np.ascontiguousarray(labels, np.int64)
         keep, n_big, front = _choose_cluster(rows, cols, bounds, labels, float(min_fraction), float(border))
-    return keep, {"clusters": int(n_big), "front_points": int(front), "occluded_fraction": occluded_fraction(front, keep)}
+    return keep, {"clusters": int(n_big), "front_points": int(front),
+                  "occluded_fraction": occluded_fraction(front, keep)}
 
 
 def occluded_fraction(front: int, kept: np.ndarray) -> float:
@@ -313,7 +314,7 @@ def _choose_surface(z, rows, cols, box, labels, cut_i, cut_j, points, focal, min
                 reach[labels[p]] = True
         enclosing &= reach
     half_diag_px = 0.5 * math.hypot(box[2] - box[0], box[3] - box[1])
-    best, best_score = 0, -np.inf
+    best_score = -np.inf
     best_keep, best_jumps = labels == big[0], np.full(n_labels, np.nan)
     for k in range(len(big)):
         seg = big[k]
@@ -333,7 +334,7 @@ def _choose_surface(z, rows, cols, box, labels, cut_i, cut_j, points, focal, min
         fit = min(span, 1.0) * (0.3 if hides else 1.0)
         score = n / P * fit * np.exp(-2.0 * offset2)
         if score > best_score:
-            best, best_score, best_keep, best_jumps = k, score, keep, jumps
+            best_score, best_keep, best_jumps = score, keep, jumps
     front = 0
     for other in range(n_labels):
         if best_jumps[other] < 0.0:

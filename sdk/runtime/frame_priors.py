@@ -36,8 +36,8 @@ from equipose.core.parallel import run_parts, split_ranges, workers
 from equipose.core.metadata import FRAME_PRIOR_STEPS
 from equipose.runtime.rest_facet import rest_facet_up
 
-__all__ = ["FRAME_PRIOR_STEPS", "MAX_DEG", "MIRROR_ITERS", "MIRROR_STEP", "parse_steps", "mirror_plane", "footprint_yaw",
-           "apply_frame_priors"]
+__all__ = ["FRAME_PRIOR_STEPS", "MAX_DEG", "MIRROR_ITERS", "MIRROR_STEP", "parse_steps", "mirror_plane",
+           "footprint_yaw", "apply_frame_priors"]
 
 MAX_DEG = 20.0                  # default bound on how far a step may turn the pose
 MIRROR_ITERS = 8
