@@ -23,7 +23,7 @@ FAST = {"copies": False, "rescore": False, "view": False, "polish": False, "rest
 PROFILES: dict = {
     "accurate": {"*": {}},
     "default": {"*": {},                             # per model: settings measured within noise of accurate
-                # (docs/benchmarks.md, v0.24, v0.28, v0.29, v0.32: full test sets, fp32 and int8)
+                # (docs/benchmarks.md, v0.24, v0.28, v0.29, v0.32, v0.33: full test sets, fp32 and int8)
                 "airplane-complete": {"flip": {"templates": 4}, "rescore": {"k": 4}},
                 "airplane-partial": {"flip": {"template_points": 128, "templates": 2}, "turn": {"points": 128},
                                      "rescore": {"iters": 15}},
@@ -40,7 +40,7 @@ PROFILES: dict = {
                 "bowl-tabletop": {"rescore": {"k": 4}},
                 "sofa-partial": {"polish": {"points": 1024}, "rescore": {"points": 128}},
                 "chair-partial": {"rescore": {"iters": 15}, "polish": {"iters": 10, "points": 2048},
-                                  "view": {"k": 3}}},
+                                  "view": {"k": 2}}},
     "fast": {"*": FAST},
 }
 
