@@ -131,6 +131,8 @@ class ObjectState:
         selection: ``Selection`` of the chosen hypothesis; rotation [3, 3], translation [3] the pose (category
             frame → centred camera frame, model units).
         up: None or the unit camera-frame up the pose keeps; up_source "given" | "rest_facet" | None.
+        support_up: None or the unit camera-frame normal of the support plane the object stands on, found in the
+            depth frame whether or not an up prior was asked for (evidence only: no stage turns the pose to it).
         symmetry: the symmetry results report (a stage may settle it, e.g. the handle).
         ambiguous, confidence: the result's flags (stages may lower confidence or set ambiguous).
         prefer, prefer_margin: tracking's preferred hypothesis (index or rotation) and its margin; top_k: hypotheses
@@ -159,6 +161,7 @@ class ObjectState:
     translation: np.ndarray | None = None
     up: np.ndarray | None = None
     up_source: str | None = None
+    support_up: np.ndarray | None = None
     ambiguous: bool = False
     confidence: float = 1.0
     prefer: object = None

@@ -11,7 +11,10 @@ of the object was seen —
 - ``coverage``: share of the posed shape's points with an input point within ``FAR`` RMS radii (how much was seen);
 - ``occlusion``: the share of the box's object cluster that something in front hid (box prompts; else 0);
 - ``log_points``: log10 of the crop's point count; ``ambiguous``, ``up_given``: the result's flags (0/1);
-- ``handle_seen``, ``handle_share``: mugs: the handle stage's verdict and its handle-zone points / input points.
+- ``handle_seen``, ``handle_share``: mugs: the handle stage's verdict and its handle-zone points / input points;
+- ``plane_tilt``: (1 − cos θ) / 2 for the angle θ between the pose's category up axis (z) and the normal of the
+  support plane the crop found under the object (0 upright, 0.5 lying, 1 upside down; 0 without a plane, e.g. from
+  ``predict_points``). The plane is evidence here, not a prior: the pose is not turned to it.
 
 With ``confidence_calibration`` in the model file, ``confidence`` = σ(bias + Σ weight·feature): the estimated chance
 that the rotation is within 10° of the truth (modulo the symmetry) and the centre within 2 cm, fitted on rendered
@@ -64,6 +67,8 @@ def evidence(state: ObjectState) -> dict:
         "up_given": float(state.up is not None),
         "handle_seen": float(bool(handle)) if handle is not None else 0.0,
         "handle_share": float(state.extras.get("handle_points", 0)) / max(len(x), 1),
+        "plane_tilt": 0.0 if state.support_up is None else
+        float(np.clip(0.5 * (1.0 - float(state.rotation[:, 2] @ state.support_up)), 0.0, 1.0)),
     }
 
 
