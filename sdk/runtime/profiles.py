@@ -39,8 +39,7 @@ PROFILES: dict = {
                 "can-tabletop": {"rescore": {"k": 4}},
                 "bowl-tabletop": {"rescore": {"k": 4}},
                 "sofa-partial": {"polish": {"points": 1024}, "rescore": {"points": 128}},
-                "chair-partial": {"rescore": {"iters": 15}, "polish": {"iters": 10, "points": 2048},
-                                  "view": {"k": 2}}},
+                "chair-partial": {"view": {"k": 2}}},           # its calibrated re-scoring and polish (v0.33)
     "fast": {"*": FAST},
 }
 
