@@ -64,6 +64,24 @@ def test_a_frame_prediction_carries_the_support_plane_evidence():
     assert 0.0 < tilt < 0.05 and axis_deg < 20.0
 
 
+def test_the_handle_fit_enters_the_evidence_only_when_the_handle_is_seen():
+    from equipose.samples import sample_objects, sample_path
+    from equipose.sources.folder import FolderSource
+    frame = next(iter(FolderSource(sample_path())))
+    box = sample_objects()[0]["box"]
+    r = PoseEstimator("mug-tabletop").predict(frame.depth, frame.K, box=box, depth_unit=frame.depth_unit, up="plane")
+    ev = r.extras["evidence"]
+    if r.handle_visible:
+        share, mass = r.extras["handle_fit"]
+        assert ev["handle_fit_share"] == pytest.approx(share) and ev["handle_fit_mass"] == pytest.approx(mass)
+        assert 0.0 < share <= 1.0 and mass > 0.0
+    else:
+        assert ev["handle_fit_share"] == 0.0 and ev["handle_fit_mass"] == 0.0
+    canon = _cloud(seed=3)
+    plain = evidence(posed_state(canon, np.eye(3), np.zeros(3), canonical=canon))
+    assert plain["handle_fit_share"] == 0.0 and plain["handle_fit_mass"] == 0.0       # no handle stage
+
+
 def test_stage_applies_the_logistic_model_and_keeps_the_margin():
     R, t = np.eye(3), np.zeros(3)
     canon = _cloud(seed=1)

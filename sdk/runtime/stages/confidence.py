@@ -12,6 +12,8 @@ of the object was seen —
 - ``occlusion``: the share of the box's object cluster that something in front hid (box prompts; else 0);
 - ``log_points``: log10 of the crop's point count; ``ambiguous``, ``up_given``: the result's flags (0/1);
 - ``handle_seen``, ``handle_share``: mugs: the handle stage's verdict and its handle-zone points / input points;
+- ``handle_fit_share``, ``handle_fit_mass``: mugs: how clearly the handle stands out of the body in the fit that
+  placed it (its window's share of the excess radius, the excess radius per point; 0 when no handle was seen);
 - ``plane_tilt``: (1 − cos θ) / 2 for the angle θ between the pose's category up axis (z) and the normal of the
   support plane the crop found under the object (0 upright, 0.5 lying, 1 upside down; 0 without a plane, e.g. from
   ``predict_points``). The plane is evidence here, not a prior: the pose is not turned to it.
@@ -54,6 +56,7 @@ def evidence(state: ObjectState) -> dict:
     crop = state.crop or {}
     n_crop = crop.get("inliers", len(x))
     handle = state.extras.get("handle_visible")
+    visible, fit = bool(handle), state.extras.get("handle_fit")
     flip = state.extras.get("flip_margin", getattr(state.selection, "flip_margin", float("nan")))
     return {
         "margin": float(state.confidence),
@@ -67,6 +70,8 @@ def evidence(state: ObjectState) -> dict:
         "up_given": float(state.up is not None),
         "handle_seen": float(bool(handle)) if handle is not None else 0.0,
         "handle_share": float(state.extras.get("handle_points", 0)) / max(len(x), 1),
+        "handle_fit_share": fit[0] if visible and fit else 0.0,
+        "handle_fit_mass": fit[1] if visible and fit else 0.0,
         "plane_tilt": 0.0 if state.support_up is None else
         float(np.clip(0.5 * (1.0 - float(state.rotation[:, 2] @ state.support_up)), 0.0, 1.0)),
     }

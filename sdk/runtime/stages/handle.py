@@ -1,7 +1,8 @@
 """Stage ``handle`` (metadata ``handle``): the azimuth about a mug's axis from its observed handle
 (``equipose.runtime.handle.resolve_handle``), which makes the pose full 6D (symmetry "none"). Result extras
 ``handle_visible`` (a handle was found and enough points lie in the handle zone of the canonical shape),
-``handle_points``, ``handle_direction_object``; a handle not seen sets ``ambiguous``.
+``handle_points``, ``handle_direction_object``, ``handle_fit`` ((share, mass) of the fit that placed the handle, or
+None: ``equipose.core.handles.HandleFit``); a handle not seen sets ``ambiguous``.
 
 Convention: model units, category frame (z up = the symmetry axis; the handle along the metadata direction [3]).
 """
@@ -34,12 +35,13 @@ class HandleStage(Stage):
         return {"direction": self.direction.tolist()}
 
     def run(self, state: ObjectState) -> None:
-        R, found, _ = resolve_handle(self.direction, state.points, state.rotation, state.translation)
+        R, found, fit = resolve_handle(self.direction, state.points, state.rotation, state.translation)
         observed = (np.asarray(state.points, np.float64) - state.translation) @ R          # [N, 3] category frame
         count = handle_zone_count(observed, state.canonical_category, self.direction)
         visible = bool(found and count >= max(HANDLE_MIN_POINTS, HANDLE_MIN_FRACTION * len(observed)))
         state.symmetry = "none"                                                 # the handle fixes the azimuth
         state.set_pose(R)
         state.extras.update(handle_visible=visible, handle_points=int(count),
-                            handle_direction_object=self.direction.copy())
+                            handle_direction_object=self.direction.copy(),
+                            handle_fit=(float(fit.share), float(fit.mass)) if found else None)
         state.ambiguous = bool(state.ambiguous or not visible)
