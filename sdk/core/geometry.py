@@ -11,6 +11,8 @@ import numpy as np
 from numba import njit
 from scipy.spatial.transform import Rotation
 
+from equipose.core.parallel import run_parts, split_ranges, workers
+
 __all__ = ["quaternion_to_matrix", "matrix_to_quaternion", "rotation_angle_deg", "axis_angle_deg", "backproject",
            "farthest_point_order", "farthest_point_orders", "random_rotations", "rotation_between", "nearest_rotation",
            "cross"]
@@ -66,7 +68,7 @@ def backproject(depth_m: np.ndarray, K: np.ndarray, mask: np.ndarray | None = No
     return np.stack([x, y, z], 1).astype(np.float32), np.stack([rows, cols], 1)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _farthest_orders(p, n, starts):
     """FPS loop of ``farthest_point_orders``: ``p`` [3, P] float32 centred (coordinates along the fast axis),
     ``starts`` [S] → indices [S, n ≤ P]. Each step writes the float32 squared distances to the newest point, then
@@ -118,13 +120,16 @@ def farthest_point_order(points: np.ndarray, n: int, start: int = 0) -> np.ndarr
 
 def farthest_point_orders(points: np.ndarray, n: int, starts) -> np.ndarray:
     """``farthest_point_order`` from several starts: indices [S, n] of ``points`` [P, 3], row s the nested order
-    from ``starts[s]``."""
+    from ``starts[s]``. The starts run in ``equipose.core.parallel.workers()`` parts side by side."""
     p = _centred_columns(points, "farthest_point_orders")                     # [3, P]
     P = p.shape[1]
     st = np.asarray(starts, dtype=np.int64).reshape(-1)                       # [S]
     if len(st) and (st.min() < 0 or st.max() >= P):
         raise ValueError(f"farthest_point_orders: starts must index the {P} points, got {st.tolist()}")
-    idx = _farthest_orders(p, min(int(n), P), st)                               # [S, m]
+    m = min(int(n), P)
+    parts = split_ranges(len(st), workers()) if len(st) > 1 else [(0, len(st))]
+    outs = run_parts(_farthest_orders, [(p, m, st[a:b]) for a, b in parts])    # starts side by side (nogil)
+    idx = outs[0] if len(outs) == 1 else np.concatenate(outs)                 # [S, m]
     if n > P:                                                                   # wrap each order
         idx = np.stack([np.resize(r, int(n)) for r in idx]) if len(st) else np.empty((0, int(n)), np.int64)
     return idx

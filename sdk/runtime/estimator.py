@@ -201,11 +201,13 @@ class PoseEstimator:
         parts = split_ranges(x.shape[0], len(self._single_sessions))
         if len(parts) < 2:
             return self._run_session(self.session, x)
-        outs = run_parts(self._run_session, [(sess, x[a:b]) for sess, (a, b) in zip(self._single_sessions, parts)])
+        outs = run_parts(self._run_session, [(sess, x[a:b], 1) for sess, (a, b) in zip(self._single_sessions, parts)])
         return {k: np.concatenate([o[k] for o in outs]) for k in OUTPUT_NAMES}  # onnxruntime releases the GIL
 
-    def _run_session(self, session, x: np.ndarray) -> dict:
-        """One onnxruntime run of ``x`` [B, N, 3] on ``session`` → the 4 ``OUTPUT_NAMES`` arrays."""
+    def _run_session(self, session, x: np.ndarray, workers: int | None = None) -> dict:
+        """One onnxruntime run of ``x`` [B, N, 3] on ``session`` → the 4 ``OUTPUT_NAMES`` arrays; ``workers``: the
+        parts its hypothesis scores may take side by side (default the estimator's; 1 when the runs themselves
+        already go side by side)."""
         io = self.graph_io
         feeds = io.feeds(x)                                                     # points (+ neighbourhoods)
         try:
@@ -214,7 +216,7 @@ class PoseEstimator:
             raise ModelFormatError(f"onnxruntime could not run {self.path.name} on input {x.shape} "
                                    f"({type(e).__name__}: {str(e).splitlines()[0][:200]}); the model file may be "
                                    "damaged or not follow the equipose contract — re-export it") from None
-        with kernel_workers(self.workers):                                      # (+ hypothesis scores, in parts)
+        with kernel_workers(self.workers if workers is None else workers):      # (+ hypothesis scores, in parts)
             return io.complete(dict(zip(io.outputs, outs)), x)
 
     def _finish(self, outputs: dict, b: int, prep: "_crop.PreparedPoints", *, prefer: int | None = None,
@@ -254,8 +256,9 @@ class PoseEstimator:
                support_ups=None) -> list:
         t0 = time.perf_counter()
         copies = self._current_pipeline().get("copies")
-        x = copies.input_batch(preps) if copies is not None else \
-            np.stack([p.model_points for p in preps])                           # [B·K, N, 3] or [B, N, 3]
+        with kernel_workers(self.workers):                                      # the copies' FPS side by side
+            x = copies.input_batch(preps) if copies is not None else \
+                np.stack([p.model_points for p in preps])                       # [B·K, N, 3] or [B, N, 3]
         outputs = run_in_chunks(self.runner or self.run_model, x)                # ≤ RUN_CHUNK inputs per run
         inf_ms = _ms(t0)
         results = []
