@@ -32,7 +32,7 @@ PROFILES: dict = {
                 "chair-complete": {"frame_priors": {"points": 1024}, "rescore": {"k": 4, "points": 128}},
                 "sofa-complete": {"rescore": {"iters": 10, "k": 3}, "frame_priors": {"points": 1024},
                                   "upright": {"points": 64}},
-                "bottle-complete": {"rescore": {"iters": 15, "k": 3}},
+                "bottle-complete": {"rescore": {"iters": 15}},
                 "bottle-partial": {"rescore": {"iters": 15, "k": 4}},
                 "car-partial": {"polish": {"points": 2048}, "flip": {"templates": 2}},
                 "cup-tabletop": {"rescore": {"k": 4}},
