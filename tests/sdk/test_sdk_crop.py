@@ -101,6 +101,10 @@ def test_farthest_point_orders_from_several_starts_match_one_at_a_time():
         np.testing.assert_array_equal(row, farthest_point_order(pts[:50], 128, start=s))
     with pytest.raises(ValueError):
         farthest_point_orders(pts, 16, [700])
+    from equipose.core.parallel import kernel_workers
+    with kernel_workers(2):                                                    # the starts in 2 parts side by side
+        np.testing.assert_array_equal(farthest_point_orders(pts, 128, starts), many)
+        np.testing.assert_array_equal(farthest_point_orders(pts, 128, starts[:1]), many[:1])
 
 
 def test_auto_masks_find_both_objects_on_the_table():
