@@ -82,7 +82,7 @@ def _timed(fn) -> float:
 
 def run_backend(backend: str, model_path: str, threads: int = 2, objects: int = 1, runs: int = 100,
                 warmup: int = 5, checkpoint: str | None = None, refine="auto", adaptive_threads: bool = True,
-                profile: str = "default") -> dict:
+                profile: str = "default", stages: dict | None = None) -> dict:
     """Measure one backend in this process. Returns a row dict (end-to-end and per-stage percentiles, fps, rss).
 
     ``threads`` is the budget of every backend; onnxruntime follows ``PoseEstimator(adaptive_threads=...)`` within it
@@ -91,7 +91,8 @@ def run_backend(backend: str, model_path: str, threads: int = 2, objects: int = 
 
     spec = get_backend(backend)
     path = spec.model_file(model_path) if spec.model_file else model_path
-    est = PoseEstimator(path, threads=threads, refine=refine, adaptive_threads=adaptive_threads, profile=profile)
+    est = PoseEstimator(path, threads=threads, refine=refine, adaptive_threads=adaptive_threads, profile=profile,
+                        stages=stages)
     frame, box = _sample_frame()
     boxes = [box] * objects
     note, parity = spec.setup(est, frame, box, threads=threads, checkpoint=checkpoint) if spec.setup else ("", None)
@@ -122,6 +123,7 @@ def run_backend(backend: str, model_path: str, threads: int = 2, objects: int = 
     row["pipeline"] = {k[6:]: percentiles([s.get(k, 0.0) for s in samples])["p50_ms"]
                        for k in samples[0] if k.startswith("stage:")}             # p50 ms of each pipeline stage
     row["profile"] = profile
+    row["stages_options"] = stages
     row["runs"], row["threads"], row["objects"], row["refine"] = runs, threads, objects, est.refine
     row["copies"] = est.copies
     row["threads_used"] = 1 if spec.runs_model_file and est.uses_single_thread(objects * est.copies) else threads
@@ -136,9 +138,10 @@ def run_backend(backend: str, model_path: str, threads: int = 2, objects: int = 
 # Orchestration: one subprocess per backend
 
 def _run_isolated(backend, model_path, threads, objects, runs, warmup, checkpoint, refine="auto",
-                  adaptive_threads=True, profile="default") -> dict:
+                  adaptive_threads=True, profile="default", stages=None) -> dict:
     cmd = [sys.executable, "-m", "equipose.bench.harness", backend, model_path, str(threads), str(objects), str(runs),
-           str(warmup), checkpoint or "", str(refine), "1" if adaptive_threads else "0", profile]
+           str(warmup), checkpoint or "", str(refine), "1" if adaptive_threads else "0", profile,
+           json.dumps(stages)]
     env = dict(os.environ, OMP_NUM_THREADS=str(threads), DEPTHAI_LEVEL="error")
     p = subprocess.run(cmd, capture_output=True, text=True, env=env)
     if p.returncode != 0:
@@ -149,7 +152,7 @@ def _run_isolated(backend, model_path, threads, objects, runs, warmup, checkpoin
 
 def run_benchmark(model_path: str, backends=BACKENDS, threads: int = 2, objects: int = 1, runs: int = 100,
                   warmup: int = 5, checkpoint: str | None = None, isolate: bool = True, refine="auto",
-                  adaptive_threads: bool = True, profile: str = "default") -> dict:
+                  adaptive_threads: bool = True, profile: str = "default", stages: dict | None = None) -> dict:
     """All requested backends on the same frame; returns ``{"model", "threads", "points", "objects", "rows",
     "ratios", ...}``; ``ratios[backend]`` = its end-to-end and inference-stage p50 ÷ onnxruntime-fp32's."""
     from equipose.runtime.estimator import PoseEstimator
@@ -163,7 +166,7 @@ def run_benchmark(model_path: str, backends=BACKENDS, threads: int = 2, objects:
     for b in backends:
         row = (_run_isolated if isolate else lambda *a: run_backend(*a))(b, str(model_path), threads, objects, runs,
                                                                          warmup, checkpoint, refine,
-                                                                         adaptive_threads, profile)
+                                                                         adaptive_threads, profile, stages)
         rows.append(row)
         print(f"  measured {b}: " + (f"p50 {row['p50_ms']:.1f} ms" if "p50_ms" in row else row["error"]),
               file=sys.stderr, flush=True)
@@ -173,7 +176,7 @@ def run_benchmark(model_path: str, backends=BACKENDS, threads: int = 2, objects:
               for r in rows if ref and "p50_ms" in r}
     return {"model": str(model_path), "preset": cfg.name, "threads": threads, "points": est.num_points,
             "refine": rows[0].get("refine") if rows else None, "copies": rows[0].get("copies") if rows else None,
-            "adaptive_threads": adaptive_threads, "profile": profile,
+            "adaptive_threads": adaptive_threads, "profile": profile, "stages_options": stages,
             "objects": objects, "macs": macs, "matmul_peak_gmacs": peak, "bound_ms": macs * objects / peak / 1e6,
             "rows": rows, "ratios": ratios}
 
@@ -184,7 +187,8 @@ def format_table(result: dict) -> str:
     lines = [f"model {result['model']} (preset {result['preset']}, N={result['points']}, "
              f"{result['macs'] / 1e9:.3f} GMAC/object), {result['threads']} thread(s), {result['objects']} object(s)/frame"
              f", profile {result.get('profile', 'default')}"
-             f", ICP re-scoring of {result.get('refine') or 0} hypotheses (selection stage)"
+             + (f", stages {json.dumps(result['stages_options'])}" if result.get("stages_options") else "")
+             + f", ICP re-scoring of {result.get('refine') or 0} hypotheses (selection stage)"
              + (f", {result['copies']} rotated input copies per object" if (result.get("copies") or 1) > 1 else ""),
              f"MatMul peak {result['matmul_peak_gmacs']:.1f} GMAC/s → bound {result['bound_ms']:.2f} ms/frame",
              f"{'backend':<18} {'p50 ms':>8} {'bound':>6} {'p95 ms':>8} {'max ms':>8} {'FPS':>8} {'RSS MB':>8} "
@@ -212,10 +216,10 @@ def format_table(result: dict) -> str:
 
 
 def _worker_main(argv):
-    backend, model, threads, objects, runs, warmup, ckpt, refine, adaptive, profile = argv
+    backend, model, threads, objects, runs, warmup, ckpt, refine, adaptive, profile, stages = argv
     row = run_backend(backend, model, int(threads), int(objects), int(runs), int(warmup), ckpt or None,
                       "auto" if refine == "auto" else int(refine), adaptive_threads=adaptive == "1",
-                      profile=profile)
+                      profile=profile, stages=json.loads(stages))
     sys.stdout.write(json.dumps(row) + "\n")
 
 

@@ -6,6 +6,7 @@ import pathlib
 import sys
 import tempfile
 
+from equipose.commands import stage_options
 from equipose.core.errors import ConfigError
 
 COMPARE = {"torch": "torch", "icp": "icp60", "int8": "onnxruntime-int8"}
@@ -34,6 +35,9 @@ def add_arguments(p):
                    help="the pipeline's speed / accuracy point (PoseEstimator(profile=...)), every backend")
     p.add_argument("--refine", default="auto",
                    help="ICP re-scoring of K hypotheses in every backend (default 'auto': the model file's setting)")
+    p.add_argument("--stages", default=None,
+                   help="stage options over the profile's, as JSON (PoseEstimator(stages=...)), every backend, e.g. "
+                        "'{\"view\": {\"k\": 3}}'")
 
 
 def _resolve_model(name):
@@ -95,7 +99,8 @@ def run(args) -> int:
     backends = ["onnxruntime-fp32"] + [COMPARE[c] for c in extra]
     result = run_benchmark(model, backends, threads=args.threads, objects=args.batch, runs=args.runs,
                            warmup=args.warmup, checkpoint=args.checkpoint, refine=refine,
-                           adaptive_threads=not args.fixed_threads, profile=args.profile)
+                           adaptive_threads=not args.fixed_threads, profile=args.profile,
+                           stages=stage_options(args.stages))
     print(format_table(result))
     if args.json_path:
         pathlib.Path(args.json_path).write_text(json.dumps(result, indent=1))

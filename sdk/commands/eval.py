@@ -10,6 +10,7 @@ object and prompt); then ``--category`` / ``--mode`` do not apply and ``--model`
 """
 from __future__ import annotations
 
+from equipose.commands import stage_options
 from equipose.core.errors import ConfigError
 
 
@@ -62,20 +63,6 @@ def add_arguments(p) -> None:
                         "'equipose models' lists)")
 
 
-def _stages(text):
-    """``--stages`` JSON → {stage: options} (None when not given)."""
-    if not text:
-        return None
-    import json
-    try:
-        value = json.loads(text)
-    except json.JSONDecodeError as e:
-        raise ConfigError(f"--stages must be JSON like '{{\"rescore\": {{\"iters\": 10}}}}': {e}") from None
-    if not isinstance(value, dict):
-        raise ConfigError(f"--stages must be a JSON object of stage options, got {text!r}")
-    return value
-
-
 def _run_dataset(args) -> int:
     """``--dataset``: the real-data evaluation of ``equipose.eval.datasets`` (torch-free)."""
     from equipose.eval.datasets.run import evaluate_dataset, format_table, write_json
@@ -124,7 +111,7 @@ def run(args) -> int:
                    data_root=args.data_root, limit=args.limit, icp_templates=args.icp_templates,
                    icp_points=args.icp_points, icp_iters=args.icp_iters, icp_samples=args.icp_samples, cache_dir=args.cache_dir,
                    refine=args.refine, copies=args.copies, exclude=exclude, up=args.up, profile=args.profile,
-                   stages=_stages(args.stages))
+                   stages=stage_options(args.stages))
     if args.store_metrics and not args.model:
         raise ConfigError("--store-metrics needs --model (the metrics describe that file)")
     print(format_table(res))

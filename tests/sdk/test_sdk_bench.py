@@ -66,3 +66,21 @@ def test_bench_cli_rejects_bad_compare(tiny_model):
     p = subprocess.run([sys.executable, "-m", "equipose.cli", "bench", "--model", str(tiny_model), "--compare", "gpu"],
                        capture_output=True, text=True)
     assert p.returncode == 2 and "--compare" in p.stderr
+
+
+def test_bench_cli_stage_options_reach_every_run(tiny_model, tmp_path):
+    """--stages mirrors PoseEstimator(stages=...): a stage switched off leaves the measured pipeline."""
+    pipelines = {}
+    for stages in (None, '{"confidence": false}'):
+        out = tmp_path / f"s{stages is None}.json"
+        p = subprocess.run([sys.executable, "-m", "equipose.cli", "bench", "--model", str(tiny_model), "--threads", "1",
+                            "--runs", "2", "--warmup", "1", "--compare", "", "--json", str(out),
+                            *(["--stages", stages] if stages else [])], capture_output=True, text=True)
+        assert p.returncode == 0, p.stderr
+        data = json.loads(out.read_text())
+        assert data["stages_options"] == (json.loads(stages) if stages else None)
+        pipelines[stages] = set(data["rows"][0]["pipeline"])
+    assert "confidence" in pipelines[None] and "confidence" not in pipelines['{"confidence": false}']
+    p = subprocess.run([sys.executable, "-m", "equipose.cli", "bench", "--model", str(tiny_model), "--stages", "[1]"],
+                       capture_output=True, text=True)
+    assert p.returncode != 0 and "--stages" in p.stderr
