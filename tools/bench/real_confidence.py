@@ -27,6 +27,7 @@ import numpy as np
 
 from equipose import PoseEstimator
 from equipose.core.errors import EquiposeError
+from equipose.eval.datasets.frames import mask_box
 from equipose.eval.realdata import load_labelled_scene, table_plane
 
 MODELS = {"cup": "cup-tabletop", "bowl": "bowl-tabletop", "can": "can-tabletop"}
@@ -34,11 +35,6 @@ MODELS = {"cup": "cup-tabletop", "bowl": "bowl-tabletop", "can": "can-tabletop"}
 
 def _axis(r) -> np.ndarray:
     return r.symmetry_axis if r.symmetry_axis is not None else r.rotation[:, 2]
-
-
-def _box(mask: np.ndarray) -> tuple:
-    rows, cols = np.nonzero(mask)
-    return int(cols.min()), int(rows.min()), int(np.ptp(cols)) + 1, int(np.ptp(rows)) + 1
 
 
 def main(argv=None) -> int:
@@ -69,7 +65,7 @@ def main(argv=None) -> int:
             if est is None or mask.sum() < 200:
                 continue
             rest = 90.0 if oid in lying.get(scene.name, []) else 0.0
-            for prompt, region in (("mask", {"mask": mask}), ("box", {"box": _box(mask)})):
+            for prompt, region in (("mask", {"mask": mask}), ("box", {"box": mask_box(mask)})):
                 try:
                     r = est.predict(scene.depth, scene.K, depth_unit="mm", **region)
                 except EquiposeError as e:
