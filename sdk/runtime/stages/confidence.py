@@ -55,8 +55,8 @@ def evidence(state: ObjectState) -> dict:
     d_shape = nearest_distances(x, posed)                                       # [M] shape → input
     crop = state.crop or {}
     n_crop = crop.get("inliers", len(x))
-    handle = state.extras.get("handle_visible")
-    visible, fit = bool(handle), state.extras.get("handle_fit")
+    visible = bool(state.extras.get("handle_visible"))                          # mugs; False without a handle stage
+    fit = state.extras.get("handle_fit") if visible else None                  # (share, mass) of the handle fit
     flip = state.extras.get("flip_margin", getattr(state.selection, "flip_margin", float("nan")))
     return {
         "margin": float(state.confidence),
@@ -68,10 +68,10 @@ def evidence(state: ObjectState) -> dict:
         "log_points": math.log10(max(int(n_crop), 1)),
         "ambiguous": float(bool(state.ambiguous)),
         "up_given": float(state.up is not None),
-        "handle_seen": float(bool(handle)) if handle is not None else 0.0,
+        "handle_seen": float(visible),
         "handle_share": float(state.extras.get("handle_points", 0)) / max(len(x), 1),
-        "handle_fit_share": fit[0] if visible and fit else 0.0,
-        "handle_fit_mass": fit[1] if visible and fit else 0.0,
+        "handle_fit_share": fit[0] if fit else 0.0,
+        "handle_fit_mass": fit[1] if fit else 0.0,
         "plane_tilt": 0.0 if state.support_up is None else
         float(np.clip(0.5 * (1.0 - float(state.rotation[:, 2] @ state.support_up)), 0.0, 1.0)),
     }
