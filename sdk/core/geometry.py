@@ -127,8 +127,7 @@ def farthest_point_orders(points: np.ndarray, n: int, starts) -> np.ndarray:
     if len(st) and (st.min() < 0 or st.max() >= P):
         raise ValueError(f"farthest_point_orders: starts must index the {P} points, got {st.tolist()}")
     m = min(int(n), P)
-    parts = split_ranges(len(st), workers()) if len(st) > 1 else [(0, len(st))]
-    outs = run_parts(_farthest_orders, [(p, m, st[a:b]) for a, b in parts])    # starts side by side (nogil)
+    outs = run_parts(_farthest_orders, [(p, m, st[a:b]) for a, b in split_ranges(len(st), workers())])  # (nogil)
     idx = outs[0] if len(outs) == 1 else np.concatenate(outs)                 # [S, m]
     if n > P:                                                                   # wrap each order
         idx = np.stack([np.resize(r, int(n)) for r in idx]) if len(st) else np.empty((0, int(n)), np.int64)
