@@ -17,7 +17,7 @@ import numpy as np
 from equipose.core.errors import ConfigError
 from equipose.core.geometry import axis_angle_deg, rotation_angle_deg
 
-__all__ = ["rotation_errors", "translation_errors", "summarize", "FLIP_DEG", "ROW_KEYS", "METRICS", "register_metric",
+__all__ = ["auroc", "rotation_errors", "translation_errors", "summarize", "FLIP_DEG", "ROW_KEYS", "METRICS", "register_metric",
            "unregister_metric", "row_keys"]
 
 FLIP_DEG = 150.0
@@ -85,3 +85,14 @@ def summarize(method: str, rot_err, trans_err) -> dict:
     if r.size == 0:
         raise ConfigError("no samples to summarise")
     return {"method": method, **{name: float(fn(r, t)) for name, fn in METRICS.items()}}
+
+
+def auroc(score: np.ndarray, y: np.ndarray) -> float:
+    """Area under the ROC curve of ``score`` for y = 1 (ties count half); NaN when one class is missing."""
+    y = np.asarray(y, bool)
+    n1, n0 = int(y.sum()), int((~y).sum())
+    if not n1 or not n0:
+        return float("nan")
+    from scipy.stats import rankdata
+    ranks = rankdata(score)
+    return float((ranks[y].sum() - n1 * (n1 + 1) / 2) / (n1 * n0))

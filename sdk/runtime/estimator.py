@@ -26,7 +26,7 @@ from equipose.runtime.profiles import merge_stage_options, profile_options
 from equipose.runtime.result import FrameError, PoseResult
 from equipose.runtime.spec import ModelSpec
 from equipose.runtime.stage import stage_metadata_keys
-from equipose.runtime.upright import check_up, per_object_up, resolve_plane_up
+from equipose.runtime.upright import check_up, per_object_up, resolve_support_plane
 from equipose.models import resolve_model_file
 from equipose.runtime.session import INPUT_NAME, OUTPUT_NAMES, GraphIO, check_io, open_session, run_in_chunks
 
@@ -220,13 +220,13 @@ class PoseEstimator:
             return io.complete(dict(zip(io.outputs, outs)), x)
 
     def _finish(self, outputs: dict, b: int, prep: "_crop.PreparedPoints", *, prefer: int | None = None,
-                prefer_margin: float = 0.0, up=None, crop: dict | None = None, support_up=None) -> tuple:
+                prefer_margin: float = 0.0, up=None, crop: dict | None = None, support_plane=None) -> tuple:
         """Outputs of batch item ``b`` → (PoseResult without timings, selection ms)."""
         if self.instance is not None and up is not None:
             raise ConfigError("the up prior does not apply in instance-level mode (model_points): leave up=None")
         with kernel_workers(self.workers), single_thread_blas():                # multi-start ICP side by side
             return self._current_pipeline().run(outputs, b, prep, prefer=prefer, prefer_margin=prefer_margin, up=up,
-                                                support_up=support_up,
+                                                support_plane=support_plane,
                                                 category=self.category, top_k=self.top_k, crop=crop)
 
     def predict_points(self, points, *, up=None) -> PoseResult:
@@ -253,7 +253,7 @@ class PoseEstimator:
                            [len(_crop.check_points(p)) for p in point_sets], ups=ups)
 
     def _infer(self, preps, crops, fps_ms, crop_ms, counts, prefer=None, prefer_margin=0.0, ups=None,
-               support_ups=None) -> list:
+               support_planes=None) -> list:
         t0 = time.perf_counter()
         copies = self._current_pipeline().get("copies")
         with kernel_workers(self.workers):                                      # the copies' FPS side by side
@@ -266,7 +266,7 @@ class PoseEstimator:
             pref = None if prefer is None else prefer[b]
             res, sel_ms = self._finish(outputs, b, prep, prefer=pref, prefer_margin=prefer_margin,
                                        up=None if ups is None else ups[b],
-                                       support_up=None if support_ups is None else support_ups[b],
+                                       support_plane=None if support_planes is None else support_planes[b],
                                        crop=None if crops[b] is None else crops[b].diagnostics)
             res.num_points, res.points_centre = int(counts[b]), prep.centre_m.copy()
             res.crop = {} if crops[b] is None else dict(crops[b].diagnostics)
@@ -351,10 +351,11 @@ class PoseEstimator:
             fps_ms.append((t3 - t2) * 1e3)
             prefs.append(None if prefer is None else prefer[i])
         if preps:
-            support_ups = [resolve_plane_up(plane, c.points) for c in crops]   # None where no plane is under it
+            supports = [resolve_support_plane(plane, c.points) for c in crops]  # None where no plane is under it
+            support_ups = [None if s is None else s[0] for s in supports]
             results = self._infer(preps, crops, fps_ms, crop_ms, counts, prefer=prefs, prefer_margin=prefer_margin,
                                   ups=support_ups if isinstance(up, str) else [up] * len(preps),
-                                  support_ups=support_ups)
+                                  support_planes=supports)
             for i, r in zip(slots, results):
                 out[i] = r
         return out

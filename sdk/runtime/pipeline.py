@@ -89,18 +89,19 @@ class Pipeline:
                            canonical=canon, template=canon, symmetry=self.spec.symmetry)
 
     def run(self, outputs: dict, b: int, prep, *, prefer=None, prefer_margin: float = 0.0, up=None,
-            category: str = "", top_k: int = 5, crop: dict | None = None, support_up=None) -> tuple:
+            category: str = "", top_k: int = 5, crop: dict | None = None, support_plane=None) -> tuple:
         """Batch item ``b`` → (PoseResult with ``timings["stages"]`` = {stage: ms}, pipeline ms). ``crop``: the
-        object's crop diagnostics (stages read e.g. the occlusion); ``support_up``: the unit camera-frame normal of
-        the support plane under the object, or None (evidence for the confidence)."""
+        object's crop diagnostics (stages read e.g. the occlusion); ``support_plane``: (unit camera-frame normal,
+        offset m) of the support plane under the object, or None (evidence for the confidence)."""
         t0 = time.perf_counter()
         state = self.start(outputs, b, prep)
         state.crop = dict(crop or {})
         state.prefer, state.prefer_margin, state.top_k = prefer, prefer_margin, top_k
         if up is not None:
             state.up, state.up_source = np.asarray(up, np.float64), "given"
-        if support_up is not None:
-            state.support_up = np.asarray(support_up, np.float64)
+        if support_plane is not None:
+            state.support_up = np.asarray(support_plane[0], np.float64)
+            state.support_offset = float(support_plane[1])
         stage_ms = {}
         for name, stage in self.stages.items():
             t1 = time.perf_counter()

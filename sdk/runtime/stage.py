@@ -132,7 +132,8 @@ class ObjectState:
             frame → centred camera frame, model units).
         up: None or the unit camera-frame up the pose keeps; up_source "given" | "rest_facet" | None.
         support_up: None or the unit camera-frame normal of the support plane the object stands on, found in the
-            depth frame whether or not an up prior was asked for (evidence only: no stage turns the pose to it).
+            depth frame whether or not an up prior was asked for (evidence only: no stage turns the pose to it);
+            support_offset: its offset (m): a camera-frame point x lies ``support_up · x + support_offset`` above it.
         symmetry: the symmetry results report (a stage may settle it, e.g. the handle).
         ambiguous, confidence: the result's flags (stages may lower confidence or set ambiguous).
         prefer, prefer_margin: tracking's preferred hypothesis (index or rotation) and its margin; top_k: hypotheses
@@ -162,6 +163,7 @@ class ObjectState:
     up: np.ndarray | None = None
     up_source: str | None = None
     support_up: np.ndarray | None = None
+    support_offset: float | None = None
     ambiguous: bool = False
     confidence: float = 1.0
     prefer: object = None

@@ -22,7 +22,7 @@ from equipose.runtime.hypotheses import (AMBIGUOUS_MARGIN, CONFIDENCE_MIN_ANGLE_
                                          Selection, symmetric_distance_deg)
 from equipose.runtime.refine import icp_multi
 
-__all__ = ["UP_TOLERANCE_DEG", "UP_AXIS", "check_up", "upright_icp", "select_upright", "resolve_plane_up",
+__all__ = ["UP_TOLERANCE_DEG", "UP_AXIS", "check_up", "upright_icp", "select_upright", "resolve_plane_up", "resolve_support_plane",
            "per_object_up"]
 
 UP_TOLERANCE_DEG = 40.0    # hypotheses whose up axis is this close to ``up`` are refined (≈ 7 of the 60)
@@ -116,18 +116,27 @@ def select_upright(points, template, R_cat, t_cat, scores, up, *, symmetry: str 
     return sel, R[b], t[b]
 
 
-def resolve_plane_up(plane, points, min_height: float = PLANE_MIN_HEIGHT_M) -> np.ndarray | None:
-    """Camera-frame up [3] from a support plane (normal, offset) as ``find_support_plane`` returns it (the normal
-    points to the camera side, i.e. up for a table seen from above), or None: no plane, or the object's ``points``
-    [P, 3] (metres, camera frame) do not stand on it — fewer than half of them lie ``min_height`` above it (the
-    "plane" is the object's own face, or a wall behind it)."""
+def resolve_support_plane(plane, points, min_height: float = PLANE_MIN_HEIGHT_M) -> tuple | None:
+    """The support plane an object stands on, as (unit normal [3], offset m): a camera-frame point x lies
+    ``normal · x + offset`` metres above it. ``plane`` is (normal, offset) as ``find_support_plane`` returns it (the
+    normal points to the camera side, i.e. up for a table seen from above). None: no plane, or the object's
+    ``points`` [P, 3] (metres, camera frame) do not stand on it — fewer than half of them lie ``min_height`` above
+    it (the "plane" is the object's own face, or a wall behind it)."""
     if plane is None:
         return None
     n = np.asarray(plane[0], np.float64).reshape(3)
     heights = np.asarray(points, np.float64) @ n + float(plane[1])             # [P] m above the plane
     if np.mean(heights > min_height) < 0.5:
         return None
-    return n / np.linalg.norm(n)
+    norm = float(np.linalg.norm(n))
+    return n / norm, float(plane[1]) / norm
+
+
+def resolve_plane_up(plane, points, min_height: float = PLANE_MIN_HEIGHT_M) -> np.ndarray | None:
+    """Camera-frame up [3] from a support plane (``resolve_support_plane``'s normal), or None where the object does
+    not stand on one."""
+    support = resolve_support_plane(plane, points, min_height)
+    return None if support is None else support[0]
 
 
 def per_object_up(up, count: int) -> list:

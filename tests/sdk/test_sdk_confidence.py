@@ -51,6 +51,25 @@ def test_plane_tilt_reads_the_pose_against_the_support_plane():
     assert tilts == pytest.approx([0.0, 0.5, 1.0], abs=1e-9)
 
 
+def test_plane_contact_reads_how_far_the_posed_shape_floats_above_or_sinks_into_the_plane():
+    R, t = Rotation.from_euler("xyz", [5, -15, 30], degrees=True).as_matrix(), np.array([0.05, 0.0, -0.1])
+    canon = _cloud(seed=3)
+    x = canon @ R.T + t
+    rms = float(np.sqrt(np.mean(np.sum((canon - canon.mean(0)) ** 2, 1))))
+    n = R[:, 2]                                                                 # the plane under the upright pose
+    state = posed_state(x, R, t, canonical=canon)
+    assert evidence(state)["plane_float"] == 0.0 and evidence(state)["plane_sink"] == 0.0     # no plane
+    lowest = float((x @ n).min() * state.prep.scale + state.prep.centre_m @ n)  # m along n, camera frame
+    contact = {}
+    for gap in (0.0, 0.3, -0.4, 5.0):                                           # the shape's lowest point, RMS radii
+        state.support_up, state.support_offset = n, gap * rms * state.prep.scale - lowest
+        ev = evidence(state)
+        contact[gap] = (ev["plane_float"], ev["plane_sink"])
+    assert contact[0.0] == pytest.approx((0.0, 0.0), abs=1e-9)
+    assert contact[0.3] == pytest.approx((0.3, 0.0)) and contact[-0.4] == pytest.approx((0.0, 0.4))
+    assert contact[5.0] == pytest.approx((2.0, 0.0))                            # saturates at CONTACT_CLIP
+
+
 def test_a_frame_prediction_carries_the_support_plane_evidence():
     """On the bundled mug frame (a mug standing on a table) the plane is found for a mask prompt with no up prior,
     and an upright cup pose reads a small tilt."""

@@ -80,3 +80,18 @@ def test_shape_prior_metadata():
 def test_shipped_can_model_uses_the_stage():
     from equipose import PoseEstimator
     assert PoseEstimator("can-tabletop").metadata["shape_prior"] == "cylinder"
+
+
+def test_a_cylinder_on_a_support_plane_reports_its_axis_upward():
+    """The two ends of a can look alike: with a support plane under it the stage keeps +z on the plane's side,
+    whichever end the network put up; without a plane it leaves the sign."""
+    from scipy.spatial.transform import Rotation
+    R = Rotation.from_euler("xyz", [70, 20, -30], degrees=True).as_matrix()
+    P = view(closed_cylinder(0.04, 0.12), R)
+    down = R @ Rotation.from_euler("x", 180.0, degrees=True).as_matrix()       # the same can, +z downward
+    for plane, expected in ((R[:, 2], 1.0), (None, -1.0)):
+        state = posed_state(P, down, np.zeros(3))
+        state.support_up = plane
+        CylinderStage().run(state)
+        assert state.rotation[:, 2] @ R[:, 2] == pytest.approx(expected, abs=0.02)
+        assert np.allclose(state.rotation @ state.rotation.T, np.eye(3), atol=1e-9)

@@ -12,7 +12,8 @@ axis against the table (labels 1–9, its plane fitted by ``equipose.eval.realda
   upright (0°); so an upside-down result counts 180° off.
   ``mosd_categories.json`` names one bowl as upside down without saying which, so at most one bowl error is the
   truth's own.
-Per model and prompt: objects, share with ``rest_err`` ≤ 10°, median confidence, and how many are *confident-wrong*
+Per model and prompt: objects, share with ``rest_err`` ≤ 10°, median confidence, the confidence's AUROC for
+``rest_err`` ≤ 10° (how well it ranks the right axes above the wrong ones), and how many are *confident-wrong*
 (``rest_err`` > 30°, confidence > 0.5, not ``ambiguous``). Angles in degrees.
 """
 from __future__ import annotations
@@ -28,6 +29,7 @@ import numpy as np
 from equipose import PoseEstimator
 from equipose.core.errors import EquiposeError
 from equipose.eval.datasets.frames import mask_box
+from equipose.eval.metrics import auroc
 from equipose.eval.realdata import load_labelled_scene, table_plane
 
 MODELS = {"cup": "cup-tabletop", "bowl": "bowl-tabletop", "can": "can-tabletop"}
@@ -78,9 +80,9 @@ def main(argv=None) -> int:
                     tilt = min(tilt, 180.0 - tilt)
                 rows.append({"scene": scene.name, "object": oid, "category": cat, "prompt": prompt, "tilt": tilt,
                              "rest_err": abs(tilt - rest), "confidence": float(r.confidence),
-                             "ambiguous": bool(r.ambiguous)})
-    print(f"{'model':14s} {'prompt':6s} {'objects':>7s} {'≤ 10°':>6s} {'conf med':>8s} {'confident-wrong':>15s} "
-          f"{'upside down':>11s}")
+                             "ambiguous": bool(r.ambiguous), "evidence": r.extras.get("evidence", {})})
+    print(f"{'model':14s} {'prompt':6s} {'objects':>7s} {'≤ 10°':>6s} {'conf med':>8s} {'AUROC':>6s} "
+          f"{'confident-wrong':>15s} {'upside down':>11s}")
     for cat, model in MODELS.items():
         for prompt in ("mask", "box"):
             ok = [r for r in rows if r["category"] == cat and r["prompt"] == prompt and "tilt" in r]
@@ -90,8 +92,9 @@ def main(argv=None) -> int:
             conf = np.array([r["confidence"] for r in ok])
             cw = sum(1 for r in ok if r["rest_err"] > 30 and r["confidence"] > 0.5 and not r["ambiguous"])
             flipped = sum(1 for r in ok if r["tilt"] > 150)
-            print(f"{model:14s} {prompt:6s} {len(ok):7d} {np.mean(err <= 10):6.2f} {np.median(conf):8.2f} {cw:15d} "
-                  f"{flipped:11d}")
+            auc = auroc(conf, err <= 10)                                        # NaN where all are right or wrong
+            print(f"{model:14s} {prompt:6s} {len(ok):7d} {np.mean(err <= 10):6.2f} {np.median(conf):8.2f} {auc:6.2f} "
+                  f"{cw:15d} {flipped:11d}")
     if a.json:
         pathlib.Path(a.json).write_text(json.dumps(rows, indent=1))
     return 0

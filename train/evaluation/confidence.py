@@ -2,7 +2,7 @@
 tabletop views with occluders and sensor noise (``equipose.train.data.occluded``).
 
     python -m equipose.train.evaluation.confidence --model sdk/models/mug-tabletop.onnx [--views 240] [--seed 0]
-        [--write] [--json F] [--plot F] [--data-root DIR] [--rows F]
+        [--write] [--json F] [--plot F] [--data-root DIR] [--rows F] [--without F1,F2]
 
 Each view runs through ``PoseEstimator.predict`` four times: box prompt (the visible mask's bounding box, as a
 detector gives it) and mask prompt, each without and with the up prior "plane". A pose is *right* when its rotation
@@ -26,10 +26,10 @@ import time
 
 import numpy as np
 from scipy.optimize import minimize
-from scipy.stats import rankdata
 
 from equipose.core.errors import ConfigError, EquiposeError
 from equipose.core.metadata import CONFIDENCE_FEATURES
+from equipose.eval.metrics import auroc
 from equipose.runtime.stages.confidence import logistic
 
 __all__ = ["RIGHT_DEG", "RIGHT_M", "RIGHT_DIAG", "collect", "collect_modelnet", "fit_logistic", "auroc", "reliability", "summarize", "main"]
@@ -144,16 +144,19 @@ def collect_modelnet(model, data_root=None, cache_dir=None, limit: int | None = 
 
 
 MONOTONE = ("margin", "flip_margin")      # a larger margin never lowers the confidence
+AGAINST = ("plane_tilt", "plane_float", "plane_sink")   # a pose tilted on, floating above or sunk into its support
+                                                        # plane is never more likely right
 
 
-def _monotone(features) -> list:
-    """Column indices of the ``MONOTONE`` features among ``features``."""
-    return [j for j, f in enumerate(features) if f in MONOTONE]
+def _columns(features, names) -> list:
+    """Column indices of ``names`` among ``features``."""
+    return [j for j, f in enumerate(features) if f in names]
 
 
 def _fit(rows: list, features) -> tuple:
-    """``fit_logistic`` of ``rows`` on ``features`` with the ``MONOTONE`` ones kept non-negative."""
-    return fit_logistic(*_matrix(rows, features), nonnegative=_monotone(features))
+    """``fit_logistic`` of ``rows`` on ``features``: the ``MONOTONE`` weights kept ≥ 0, the ``AGAINST`` ones ≤ 0."""
+    return fit_logistic(*_matrix(rows, features), nonnegative=_columns(features, MONOTONE),
+                        nonpositive=_columns(features, AGAINST))
 
 
 def _matrix(rows: list, features) -> tuple:
@@ -162,10 +165,11 @@ def _matrix(rows: list, features) -> tuple:
     return X, y
 
 
-def fit_logistic(X: np.ndarray, y: np.ndarray, l2: float = L2, nonnegative=()) -> tuple:
+def fit_logistic(X: np.ndarray, y: np.ndarray, l2: float = L2, nonnegative=(), nonpositive=()) -> tuple:
     """Ridge logistic regression. Convention: X [n, F], y [n] in {0, 1} → (weights [F], bias) on the raw features
     (fitted on standardised ones, so the ridge treats every feature alike); the weights of the columns in
-    ``nonnegative`` stay ≥ 0 (evidence that can only speak for the pose, such as a margin)."""
+    ``nonnegative`` stay ≥ 0 (evidence that can only speak for the pose, such as a margin), those in ``nonpositive``
+    ≤ 0 (evidence that can only speak against it)."""
     if X.ndim != 2 or len(X) != len(y) or len(np.unique(y)) < 2:
         raise ConfigError(f"logistic fit needs X [n, F] and both outcomes in y; got {X.shape}, {np.unique(y)}")
     mu, sd = X.mean(0), X.std(0)
@@ -179,7 +183,8 @@ def fit_logistic(X: np.ndarray, y: np.ndarray, l2: float = L2, nonnegative=()) -
         q = 1.0 / (1.0 + np.exp(-z)) - y                                       # dNLL/dz
         return nll + l2 * w @ w, np.append(Z.T @ q / len(y) + 2 * l2 * w, q.mean())
 
-    bounds = [(0.0, None) if j in nonnegative else (None, None) for j in range(X.shape[1])] + [(None, None)]
+    bounds = [(0.0, None) if j in nonnegative else (None, 0.0) if j in nonpositive else (None, None)
+              for j in range(X.shape[1])] + [(None, None)]
     p = minimize(loss, np.zeros(X.shape[1] + 1), jac=True, method="L-BFGS-B", bounds=bounds).x
     w = p[:-1] / sd
     return w, float(p[-1] - w @ mu)
@@ -188,16 +193,6 @@ def fit_logistic(X: np.ndarray, y: np.ndarray, l2: float = L2, nonnegative=()) -
 def predict_logistic(X: np.ndarray, w: np.ndarray, b: float) -> np.ndarray:
     """[n] σ(b + X·w), the SDK's ``logistic``."""
     return logistic(X @ w + b)
-
-
-def auroc(score: np.ndarray, y: np.ndarray) -> float:
-    """Area under the ROC curve of ``score`` for y = 1 (ties count half); NaN when one class is missing."""
-    y = np.asarray(y, bool)
-    n1, n0 = int(y.sum()), int((~y).sum())
-    if not n1 or not n0:
-        return float("nan")
-    ranks = rankdata(score)
-    return float((ranks[y].sum() - n1 * (n1 + 1) / 2) / (n1 * n0))
 
 
 def reliability(p: np.ndarray, y: np.ndarray, bins: int = 10) -> tuple:
@@ -246,7 +241,8 @@ def grouped_log_loss(rows: list, features, folds: int = 5) -> float:
         out = shapes % folds == k
         if not out.any() or out.all() or len(np.unique(y[~out])) < 2:
             continue
-        w, b = fit_logistic(X[~out], y[~out], nonnegative=_monotone(features))
+        w, b = fit_logistic(X[~out], y[~out], nonnegative=_columns(features, MONOTONE),
+                            nonpositive=_columns(features, AGAINST))
         p = np.clip(predict_logistic(X[out], w, b), 1e-6, 1 - 1e-6)
         losses.append(-np.mean(y[out] * np.log(p) + (1 - y[out]) * np.log(1 - p)))
     return float(np.mean(losses)) if losses else float("inf")
@@ -320,6 +316,7 @@ def main(argv=None) -> int:
     ap.add_argument("--write", action="store_true", help="store the fit in the model file (and its .int8 sibling)")
     ap.add_argument("--json", help="write the summary and every row here")
     ap.add_argument("--plot", help="write the held-out reliability diagram (PNG) here")
+    ap.add_argument("--without", default="", help="comma-separated evidence features to leave out of the fit")
     a = ap.parse_args(argv)
     from equipose import PoseEstimator
     if a.rows:
@@ -329,7 +326,11 @@ def main(argv=None) -> int:
         est = PoseEstimator(a.model)
         rows = collect(est, a.views, a.seed, a.data_root) if est.category in TABLETOP else \
             collect_modelnet(est, a.data_root, limit=a.limit)
-    meta, summary, _ = calibrate(rows)
+    without = {f for f in a.without.split(",") if f}
+    if without - set(CONFIDENCE_FEATURES):
+        raise ConfigError(f"--without: unknown feature(s) {sorted(without - set(CONFIDENCE_FEATURES))}; features: "
+                          f"{', '.join(CONFIDENCE_FEATURES)}")
+    meta, summary, _ = calibrate(rows, [f for f in CONFIDENCE_FEATURES if f not in without])
     print(f"{pathlib.Path(a.model).name}: {len(rows)} results, right {summary['right_rate']:.2f}; held out: "
           f"AUROC {summary['auroc']:.3f} (margin {summary['margin_auroc']:.3f}), ECE {summary['ece']:.3f} "
           f"(margin {summary['margin_ece']:.3f}), confident-wrong {summary['confident_wrong']} "

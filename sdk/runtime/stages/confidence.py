@@ -16,7 +16,10 @@ of the object was seen —
   placed it (its window's share of the excess radius, the excess radius per point; 0 when no handle was seen);
 - ``plane_tilt``: (1 − cos θ) / 2 for the angle θ between the pose's category up axis (z) and the normal of the
   support plane the crop found under the object (0 upright, 0.5 lying, 1 upside down; 0 without a plane, e.g. from
-  ``predict_points``). The plane is evidence here, not a prior: the pose is not turned to it.
+  ``predict_points``). The plane is evidence here, not a prior: the pose is not turned to it;
+- ``plane_float``, ``plane_sink``: how far the posed shape's lowest point lies above (floats) or below (sinks into)
+  that support plane, in shape RMS radii, clipped to 0..``CONTACT_CLIP`` (0 without a plane): an object standing on
+  a table touches it.
 
 With ``confidence_calibration`` in the model file, ``confidence`` = σ(bias + Σ weight·feature): the estimated chance
 that the rotation is within 10° of the truth (modulo the symmetry) and the centre within 2 cm, fitted on rendered
@@ -37,6 +40,7 @@ from equipose.runtime.stage import ObjectState, Stage, register_stage
 __all__ = ["ConfidenceStage", "FAR", "evidence", "logistic"]
 
 FAR = 0.25          # RMS radii: a point farther than this from the other set is unexplained / unseen
+CONTACT_CLIP = 2.0  # RMS radii: plane_float / plane_sink saturate here
 
 
 def logistic(z):
@@ -58,6 +62,7 @@ def evidence(state: ObjectState) -> dict:
     visible = bool(state.extras.get("handle_visible"))                          # mugs; False without a handle stage
     fit = state.extras.get("handle_fit") if visible else None                  # (share, mass) of the handle fit
     flip = state.extras.get("flip_margin", getattr(state.selection, "flip_margin", float("nan")))
+    gap = _plane_gap(state, posed, rms)                                         # RMS radii, + above the plane
     return {
         "margin": float(state.confidence),
         "flip_margin": float(np.clip(flip, 0.0, 1.0)) if np.isfinite(flip) else 1.0,
@@ -74,7 +79,22 @@ def evidence(state: ObjectState) -> dict:
         "handle_fit_mass": fit[1] if fit else 0.0,
         "plane_tilt": 0.0 if state.support_up is None else
         float(np.clip(0.5 * (1.0 - float(state.rotation[:, 2] @ state.support_up)), 0.0, 1.0)),
+        "plane_float": float(np.clip(gap, 0.0, CONTACT_CLIP)),
+        "plane_sink": float(np.clip(-gap, 0.0, CONTACT_CLIP)),
     }
+
+
+def _plane_gap(state: ObjectState, posed: np.ndarray, rms: float) -> float:
+    """Height of the posed shape's lowest point above the support plane, in shape RMS radii (0 without a plane).
+    ``posed`` [M, 3] model units, centred camera frame; the plane (``support_up``, ``support_offset``) is in metres,
+    camera frame: x_camera = scale · x_model + centre."""
+    if state.support_up is None or state.support_offset is None:
+        return 0.0
+    n = state.support_up                                                        # [3] unit, camera frame
+    scale = float(state.prep.scale)
+    lowest = float((posed @ n).min()) * scale + float(np.asarray(state.prep.centre_m, np.float64) @ n) \
+        + state.support_offset                                                  # m above the plane
+    return lowest / (rms * scale)
 
 
 @register_stage

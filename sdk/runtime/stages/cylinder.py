@@ -1,9 +1,13 @@
 """Stage ``cylinder`` (metadata ``shape_prior`` "cylinder"): the symmetry axis of cans and tins from the observed
-normals (``equipose.runtime.cylinder.cylinder_axis``), replacing the network's when it fits clearly better.
+normals (``equipose.runtime.cylinder.cylinder_axis``), replacing the network's when it fits clearly better. A
+cylinder's axis has no sign (its two ends look alike), so where the frame has a support plane under the object the
+pose is half-turned about its x axis if needed to keep +z on the plane's side (a standing can reports upright).
 
 Convention: model units, centred camera frame; the symmetry axis is the pose's +z column.
 """
 from __future__ import annotations
+
+import numpy as np
 
 from equipose.core.geometry import rotation_between
 from equipose.runtime.cylinder import cylinder_axis
@@ -25,4 +29,7 @@ class CylinderStage(Stage):
     def run(self, state: ObjectState) -> None:
         a0 = state.rotation[:, 2]
         a, _, _ = cylinder_axis(state.points, a0)
-        state.set_pose(rotation_between(a0, a) @ state.rotation)
+        R = rotation_between(a0, a) @ state.rotation                            # [3, 3]
+        if state.support_up is not None and float(R[:, 2] @ state.support_up) < 0.0:
+            R = R @ np.diag([1.0, -1.0, -1.0])                                  # the other end up
+        state.set_pose(R)
