@@ -126,8 +126,8 @@ def export_model(model, path, *, category: str, scale: float, symmetry: str = "n
         model: ``equipose.train.EquiPoseNet`` (exported in eval mode; its training flag is restored).
         path: output ``.onnx`` file (parent folders are created; written atomically).
         category, scale (metres per model unit), symmetry, calibration ({"rotation", "translation"} or None),
-        handle ([3] handle direction in the category frame, or None), shape_prior ("cylinder" or None), random_init,
-            training, metrics: written to ``metadata_props`` via ``equipose.core.metadata.encode_metadata``.
+        handle ([3] handle direction in the category frame, or None), shape_prior ("cylinder", "open_cylinder" or
+            None), random_init, training, metrics: written to ``metadata_props`` via ``equipose.core.metadata.encode_metadata``.
         opset: ONNX opset of the default domain.
         verify: run the file once in onnxruntime on the export example and compare with torch (max abs ≤ 1e-4).
         format_version: 3 (each layer's kernel weights and feature rows as inputs, no scores in the graph; quotient
@@ -285,7 +285,8 @@ def export_checkpoint(checkpoint, path, *, category: str | None = None, scale: f
     category = category or ckpt.get("category", "unknown")               # e.g. a cup network exported as "mug"
     spec = TABLETOP.get(category)
     kwargs.setdefault("handle", (1.0, 0.0, 0.0) if spec is not None and spec.handle else None)
-    kwargs.setdefault("shape_prior", "cylinder" if category == "can" else None)
+    kwargs.setdefault("shape_prior", "cylinder" if category == "can" else "open_cylinder" if category in ("cup", "mug")
+                      else None)
     return export_model(model, path, category=category,
                         scale=scale if scale is not None else ckpt.get("scale", 1.0),
                         symmetry=ckpt.get("symmetry", "none"), calibration=ckpt.get("calibration"),

@@ -33,7 +33,9 @@ iterations on the selected pose, ``--polish N``) and ``densify`` (absent: 0; the
 each point's N nearest neighbours, ``equipose.runtime.template``, ``--densify N``); ``handle`` JSON {"direction": 3}:
 the unit handle direction in the category frame, for categories whose pose includes a handle (``mug``: +x); the SDK
 then reports whether the handle was seen (``PoseResult.handle_visible``); ``shape_prior`` "cylinder": the SDK takes the
-symmetry axis from the observed normals (cans and tins, ``equipose.runtime.cylinder``); ``flip_templates`` JSON
+symmetry axis from the observed normals (cans and tins, whose two ends look alike: the axis has no sign,
+``equipose.runtime.cylinder``), "open_cylinder": the same for a body with one open end (cups and mugs: the axis
+keeps its sign); ``flip_templates`` JSON
 {"points": T×M×3, "axes": ["z"], "source": str}: category-frame shapes (model units) that settle half-turn flips
 about those axes (``equipose.runtime.flip``); ``rest_facet`` JSON {"tolerance_deg": float}: complete-shape models read
 "up" off the cloud's resting hull face (``equipose.runtime.rest_facet``); ``frame_priors`` JSON {"steps": ["rest", "mirror",
@@ -106,7 +108,7 @@ def encode_metadata(*, category: str, preset: str, model_config: dict, num_point
       | ({} if shape_prior is None else {"shape_prior": _check_shape_prior(shape_prior, "shape_prior")})
 
 
-SHAPE_PRIORS = ("cylinder",)
+SHAPE_PRIORS = ("cylinder", "open_cylinder")
 
 
 def _check_shape_prior(v, source: str) -> str:

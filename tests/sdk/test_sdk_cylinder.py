@@ -70,6 +70,7 @@ def test_shape_prior_metadata():
     base = dict(category="can", preset="tiny", model_config={}, num_points=256, num_canonical_points=256, scale=0.25,
                 partial=True, symmetry="continuous:z")
     assert decode_metadata(encode_metadata(**base, shape_prior="cylinder"))["shape_prior"] == "cylinder"
+    assert decode_metadata(encode_metadata(**base, shape_prior="open_cylinder"))["shape_prior"] == "open_cylinder"
     assert decode_metadata(encode_metadata(**base))["shape_prior"] is None
     with pytest.raises(MetadataError):
         encode_metadata(**base, shape_prior="sphere")
@@ -84,14 +85,14 @@ def test_shipped_can_model_uses_the_stage():
 
 def test_a_cylinder_on_a_support_plane_reports_its_axis_upward():
     """The two ends of a can look alike: with a support plane under it the stage keeps +z on the plane's side,
-    whichever end the network put up; without a plane it leaves the sign."""
+    whichever end the network put up; without a plane it leaves the sign, and so does an open cylinder (a cup)."""
     from scipy.spatial.transform import Rotation
     R = Rotation.from_euler("xyz", [70, 20, -30], degrees=True).as_matrix()
     P = view(closed_cylinder(0.04, 0.12), R)
     down = R @ Rotation.from_euler("x", 180.0, degrees=True).as_matrix()       # the same can, +z downward
-    for plane, expected in ((R[:, 2], 1.0), (None, -1.0)):
+    for unsigned, plane, expected in ((True, R[:, 2], 1.0), (True, None, -1.0), (False, R[:, 2], -1.0)):
         state = posed_state(P, down, np.zeros(3))
         state.support_up = plane
-        CylinderStage().run(state)
+        CylinderStage(unsigned=unsigned).run(state)
         assert state.rotation[:, 2] @ R[:, 2] == pytest.approx(expected, abs=0.02)
         assert np.allclose(state.rotation @ state.rotation.T, np.eye(3), atol=1e-9)

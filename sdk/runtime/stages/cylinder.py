@@ -1,7 +1,10 @@
-"""Stage ``cylinder`` (metadata ``shape_prior`` "cylinder"): the symmetry axis of cans and tins from the observed
-normals (``equipose.runtime.cylinder.cylinder_axis``), replacing the network's when it fits clearly better. A
-cylinder's axis has no sign (its two ends look alike), so where the frame has a support plane under the object the
-pose is half-turned about its x axis if needed to keep +z on the plane's side (a standing can reports upright).
+"""Stage ``cylinder`` (metadata ``shape_prior`` "cylinder" or "open_cylinder"): the symmetry axis of cans and tins
+("cylinder"), cups and mugs ("open_cylinder") from the observed normals (``equipose.runtime.cylinder.cylinder_axis``),
+replacing the network's when it fits clearly better. A closed cylinder's axis has no sign (its two ends look alike),
+so where the frame has a support plane under a can the pose is half-turned about its x axis if needed to keep +z on
+the plane's side (a standing can reports upright); an open cylinder keeps the network's sign (a cup may stand on its
+rim).
+With an up prior (``state.up``) the axis is given and the stage leaves the pose.
 
 Convention: model units, centred camera frame; the symmetry axis is the pose's +z column.
 """
@@ -22,14 +25,23 @@ class CylinderStage(Stage):
     metadata_key = "shape_prior"
     after = "turn"
 
+    def __init__(self, unsigned: bool = True):
+        self.unsigned = bool(unsigned)                                          # the axis has no sign (a can)
+
     @classmethod
     def build(cls, spec, options, context):
-        return cls() if spec.get(cls.metadata_key) == "cylinder" else None
+        prior = spec.get(cls.metadata_key)
+        return cls(unsigned=prior == "cylinder") if prior in ("cylinder", "open_cylinder") else None
+
+    def describe(self) -> dict:
+        return {"unsigned": self.unsigned}
 
     def run(self, state: ObjectState) -> None:
+        if state.up is not None:                                                # the up prior fixes the axis
+            return
         a0 = state.rotation[:, 2]
         a, _, _ = cylinder_axis(state.points, a0)
         R = rotation_between(a0, a) @ state.rotation                            # [3, 3]
-        if state.support_up is not None and float(R[:, 2] @ state.support_up) < 0.0:
+        if self.unsigned and state.support_up is not None and float(R[:, 2] @ state.support_up) < 0.0:
             R = R @ np.diag([1.0, -1.0, -1.0])                                  # the other end up
         state.set_pose(R)
