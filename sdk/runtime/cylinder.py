@@ -15,7 +15,7 @@ import numpy as np
 
 from equipose.core.normals import point_normals
 
-__all__ = ["point_normals", "cylinder_axis"]
+__all__ = ["point_normals", "cylinder_axis", "refine_side_axis", "SIDE_BAND"]
 
 
 def _cost(normals, axis) -> float:
@@ -27,11 +27,12 @@ SWITCH_ANGLE_DEG = 45.0     # only an axis this far from the network's can repla
 SWITCH_RATIO = 0.85         # ... and only when its cost is below this fraction of the network axis' cost
 
 
-def cylinder_axis(points, axis0, k: int = 12) -> tuple:
+def cylinder_axis(points, axis0, k: int = 12, normals=None) -> tuple:
     """(axis [3], cost of ``axis0``, cost of the chosen axis) for the points of one cylinder-like object: the network's
     ``axis0`` unless a principal direction of the normals ≥ ``SWITCH_ANGLE_DEG`` away fits the cylinder pattern
-    clearly better (cost < ``SWITCH_RATIO`` × cost of ``axis0``): the lying / upright confusion of squat tins."""
-    n = point_normals(points, k)
+    clearly better (cost < ``SWITCH_RATIO`` × cost of ``axis0``): the lying / upright confusion of squat tins.
+    ``normals`` [N, 3]: the points' unit normals when already computed (else from the ``k`` nearest neighbours)."""
+    n = point_normals(points, k) if normals is None else np.asarray(normals, np.float64)
     a0 = np.asarray(axis0, np.float64) / np.linalg.norm(axis0)
     _, vecs = np.linalg.eigh(n.T @ n)                                        # principal directions of the normals
     far = [v for v in vecs.T if abs(float(v @ a0)) < np.cos(np.radians(SWITCH_ANGLE_DEG))]
@@ -43,3 +44,26 @@ def cylinder_axis(points, axis0, k: int = 12) -> tuple:
     if min(costs) >= SWITCH_RATIO * c0:
         return a0, c0, c0
     return (best if best @ a0 >= 0 else -best), c0, min(costs)
+
+
+SIDE_BAND = 0.5             # |n·a| below this: a side normal (within 30° of perpendicular to the axis)
+SIDE_MIN_POINTS = 20        # fewer side normals than this: the axis is left as it is
+
+
+def refine_side_axis(normals, axis, band: float = SIDE_BAND, iters: int = 3) -> np.ndarray:
+    """The axis [3] that the side normals of a body of revolution are most perpendicular to, started from ``axis``
+    (unit [3], its sign kept): ``iters`` rounds of taking the normals [N, 3] within ``band`` of perpendicular to the
+    current axis and the least-variance direction of their scatter (smallest eigenvector of Σ n nᵀ). Exact for a
+    straight side; a tapered side seen from one side biases it (about 7° for normals 6° off perpendicular with half
+    the side visible). Used for open cylinders (cups and mugs), whose network axis is the less precise one
+    (docs/results/confidence/README.md, v0.34)."""
+    n = np.asarray(normals, np.float64)
+    a = np.asarray(axis, np.float64) / np.linalg.norm(axis)
+    for _ in range(iters):
+        side = n[np.abs(n @ a) < band]                                          # [S, 3]
+        if len(side) < SIDE_MIN_POINTS:
+            break
+        _, vecs = np.linalg.eigh(side.T @ side)
+        b = vecs[:, 0]
+        a = b if b @ a >= 0 else -b
+    return a

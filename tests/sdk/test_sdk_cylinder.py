@@ -96,3 +96,21 @@ def test_a_cylinder_on_a_support_plane_reports_its_axis_upward():
         CylinderStage(unsigned=unsigned).run(state)
         assert state.rotation[:, 2] @ R[:, 2] == pytest.approx(expected, abs=0.02)
         assert np.allclose(state.rotation @ state.rotation.T, np.eye(3), atol=1e-9)
+
+
+def test_the_side_normals_refine_a_cups_axis():
+    """The side of a cup seen from one side, its axis 15° off: the side normals bring a straight side back within 2°
+    (either sign kept); a tapered side (its normals 6° off perpendicular) comes closer, with a bias of its own."""
+    from scipy.spatial.transform import Rotation
+    from equipose.runtime.cylinder import point_normals, refine_side_axis
+    rng = np.random.default_rng(4)
+    R = Rotation.from_euler("xz", [25.0, 40.0], degrees=True).as_matrix()
+    off = Rotation.from_rotvec(np.radians(15.0) * R[:, 0]).as_matrix() @ R[:, 2]
+    for taper, bound in ((0.0, 2.0), (0.1, 10.0)):
+        h = rng.uniform(0.0, 0.1, 3000)
+        r = 0.035 + taper * h                                                   # wider at the top when tapered
+        a = rng.uniform(0.0, np.pi, 3000)                                       # the half facing the camera
+        P = np.c_[r * np.cos(a), r * np.sin(a), h] @ R.T
+        n = point_normals(P, 12)
+        assert np.degrees(np.arccos(min(1.0, refine_side_axis(n, off) @ R[:, 2]))) < bound
+        assert np.degrees(np.arccos(min(1.0, refine_side_axis(n, -off) @ -R[:, 2]))) < bound

@@ -3,7 +3,8 @@
 replacing the network's when it fits clearly better. A closed cylinder's axis has no sign (its two ends look alike),
 so where the frame has a support plane under a can the pose is half-turned about its x axis if needed to keep +z on
 the plane's side (a standing can reports upright); an open cylinder keeps the network's sign (a cup may stand on its
-rim).
+rim), and its axis is then refined on the side normals (``refine_side_axis``: the network's axis is the less
+precise one for cups and mugs, the more precise one for cans).
 With an up prior (``state.up``) the axis is given and the stage leaves the pose.
 
 Convention: model units, centred camera frame; the symmetry axis is the pose's +z column.
@@ -13,10 +14,13 @@ from __future__ import annotations
 import numpy as np
 
 from equipose.core.geometry import rotation_between
-from equipose.runtime.cylinder import cylinder_axis
+from equipose.core.normals import point_normals
+from equipose.runtime.cylinder import cylinder_axis, refine_side_axis
 from equipose.runtime.stage import ObjectState, Stage, register_stage
 
 __all__ = ["CylinderStage"]
+
+NORMAL_NEIGHBOURS = 12      # points per PCA normal
 
 
 @register_stage
@@ -40,7 +44,10 @@ class CylinderStage(Stage):
         if state.up is not None:                                                # the up prior fixes the axis
             return
         a0 = state.rotation[:, 2]
-        a, _, _ = cylinder_axis(state.points, a0)
+        normals = point_normals(state.points, NORMAL_NEIGHBOURS)                # [N, 3]
+        a, _, _ = cylinder_axis(state.points, a0, normals=normals)
+        if not self.unsigned:                                                   # a cup or a mug
+            a = refine_side_axis(normals, a)
         R = rotation_between(a0, a) @ state.rotation                            # [3, 3]
         if self.unsigned and state.support_up is not None and float(R[:, 2] @ state.support_up) < 0.0:
             R = R @ np.diag([1.0, -1.0, -1.0])                                  # the other end up
