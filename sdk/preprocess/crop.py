@@ -22,7 +22,11 @@ from equipose.preprocess.sampling import MIN_POINTS
 from equipose.preprocess.surfaces import box_object_cluster, nearest_depth_cluster, occluded_fraction, surface_segments
 from equipose.preprocess.validate import check_box, check_intrinsics, check_mask, depth_to_metres
 
-__all__ = ["CropResult", "check_crop_options", "crop_points", "statistical_outlier_mask", "organized_outlier_mask"]
+__all__ = ["CropResult", "check_crop_options", "crop_points", "statistical_outlier_mask", "organized_outlier_mask",
+           "PLANE_HEIGHT_RANGE", "PLANE_NOISE_SIGMAS"]
+
+PLANE_HEIGHT_RANGE = (0.006, 0.012)   # m: plane_height="auto" keeps PLANE_NOISE_SIGMAS × the table's depth noise in it
+PLANE_NOISE_SIGMAS = 3.5              # (Kinect-class noise, σ ≈ 2 mm: 8 mm; stereo noise of 3.5 mm and more: 12 mm)
 
 
 @dataclass
@@ -181,6 +185,33 @@ def _above_plane(win, valid, ry, cx, off, plane_height) -> tuple:
 
 
 @njit(cache=True)
+def _near_plane_heights(win, valid, ry, cx, off, limit) -> np.ndarray:
+    """[Q] float32 heights (m) of the ``valid`` window pixels within ``limit`` of the plane (``_plane_heights``'s
+    separable terms): the table around the object, where its depth noise shows."""
+    h, w = win.shape
+    out = np.empty(h * w, np.float32)
+    n = 0
+    for r in range(h):
+        for c in range(w):
+            if valid[r, c]:
+                z = win[r, c] * np.float32(ry[r] + cx[c]) + off
+                if -limit < z < limit:
+                    out[n] = z
+                    n += 1
+    return out[:n]
+
+
+def auto_plane_height(heights) -> float:
+    """``plane_height`` (m) for the table pixels' ``heights`` [Q] m above the plane: ``PLANE_NOISE_SIGMAS`` × their
+    robust standard deviation (1.4826 · MAD), within ``PLANE_HEIGHT_RANGE`` (its top without enough pixels)."""
+    h = np.asarray(heights, np.float64)
+    if len(h) < 50:
+        return PLANE_HEIGHT_RANGE[1]
+    sigma = 1.4826 * float(np.median(np.abs(h - np.median(h))))
+    return float(np.clip(PLANE_NOISE_SIGMAS * sigma, *PLANE_HEIGHT_RANGE))
+
+
+@njit(cache=True)
 def _lattice_pixels(valid, s, y0, x0) -> tuple:
     """(rows [P], cols [P]) int64 frame pixels of the ``valid`` [h, w] window pixels on every ``s``-th row and column,
     row-major; the window starts at frame pixel (``y0``, ``x0``)."""
@@ -234,6 +265,10 @@ def check_crop_options(options: dict) -> dict:
     if unknown:
         raise ConfigError(f"unknown crop option(s) {', '.join(unknown)}; known: {', '.join(sorted(known))}")
     for k, v in options.items():
+        if k == "plane_height" and isinstance(v, str):
+            if v != "auto":
+                raise ConfigError(f"crop option plane_height must be 'auto' or a number ≥ 0 (metres), got {v!r}")
+            continue
         if k in _NUMBER_OPTIONS:
             low, integer = _NUMBER_OPTIONS[k]
             ok = isinstance(v, (int, np.integer)) if integer else isinstance(v, (int, float, np.integer, np.floating))
@@ -251,7 +286,7 @@ def crop_points(depth, K, *, box=None, mask=None, depth_unit="mm", image_size=No
                 max_depth: float = 10.0, max_points: int = 4096, reject_background: bool | None = None,
                 outlier_k: int = 8, outlier_std: float = 2.0, min_points: int = MIN_POINTS,
                 check_plausible: bool = True, remove_support_plane: bool | None = None, support_plane=None,
-                plane_height: float = 0.012, prevalidated: bool = False) -> CropResult:
+                plane_height: float | str = "auto", prevalidated: bool = False) -> CropResult:
     """Depth frame + box/mask → cleaned object points in metres.
 
     Convention: ``depth`` [H, W] in ``depth_unit``; ``K`` [3, 3] for ``image_size`` (W, H) or the frame itself;
@@ -259,7 +294,8 @@ def crop_points(depth, K, *, box=None, mask=None, depth_unit="mm", image_size=No
     Returns ``CropResult`` with points [P, 3] float32 metres in the camera frame.
 
     Stages: validation → region → invalid-depth removal → depth gating [``min_depth``, ``max_depth``] m → support
-    plane removal (points less than ``plane_height`` above the frame's dominant plane, or beyond it, are dropped;
+    plane removal (points less than ``plane_height`` m above the frame's dominant plane, or beyond it, are dropped;
+    "auto": ``PLANE_NOISE_SIGMAS`` × the depth noise of the table pixels in the box, 6–12 mm, ``auto_plane_height``;
     ``support_plane`` = precomputed (normal, offset) from ``find_support_plane``; default on for a box without a
     mask, and skipped when the frame has no dominant plane or too few points would remain) → regular pixel-grid
     subsampling to at most ``max_points`` → background rejection (default on for a box without a mask: the object
@@ -275,6 +311,7 @@ def crop_points(depth, K, *, box=None, mask=None, depth_unit="mm", image_size=No
     """
     check_crop_options({"min_depth": min_depth, "max_depth": max_depth, "max_points": max_points, "outlier_k": outlier_k,
                         "outlier_std": outlier_std, "min_points": min_points, "plane_height": plane_height})
+    auto_height = isinstance(plane_height, str)                                 # "auto" (checked above)
     if prevalidated:
         d = depth                                                               # [H, W] float32 m, 0 = invalid
         if not (isinstance(d, np.ndarray) and d.dtype == np.float32 and d.ndim == 2):
@@ -307,8 +344,12 @@ def crop_points(depth, K, *, box=None, mask=None, depth_unit="mm", image_size=No
     if remove_support_plane:
         plane = support_plane if support_plane is not None else find_support_plane(d, Kf)
         if plane is not None:
-            above, n_above = _above_plane(win, valid, *_plane_heights(plane, Kf, x0, y0, x1, y1),
-                                          np.float32(plane_height))             # [h, w], count
+            terms = _plane_heights(plane, Kf, x0, y0, x1, y1)                   # (ry [h], cx [w], offset)
+            if auto_height:
+                plane_height = auto_plane_height(_near_plane_heights(win, valid, *terms,
+                                                                     np.float32(PLANE_HEIGHT_RANGE[1])))
+            diag["plane_height"] = round(float(plane_height), 5)
+            above, n_above = _above_plane(win, valid, *terms, np.float32(plane_height))  # [h, w], count
             if n_above >= min_points:
                 valid, n_valid = above, int(n_above)
                 diag["above_plane"] = n_valid

@@ -246,3 +246,21 @@ def test_unsigned_depth_converts_as_numpy_multiplies(rng, unit):
     scale = np.float32(1e-3 if unit == "mm" else unit)
     np.testing.assert_array_equal(depth_to_metres(depth, unit, check_plausible=False),
                                   np.multiply(depth, scale, dtype=np.float32))
+
+
+def test_auto_plane_height_follows_the_tables_depth_noise():
+    """plane_height="auto": 3.5 σ of the table pixels' heights, within 6–12 mm; a bad value is a ConfigError."""
+    from equipose.core.errors import ConfigError
+    from equipose.preprocess.crop import PLANE_HEIGHT_RANGE, PLANE_NOISE_SIGMAS, auto_plane_height
+    rng = np.random.default_rng(0)
+    assert auto_plane_height(rng.normal(0, 0.002, 5000)) == pytest.approx(PLANE_NOISE_SIGMAS * 0.002, rel=0.05)
+    assert auto_plane_height(rng.normal(0, 0.0005, 5000)) == PLANE_HEIGHT_RANGE[0]      # a clean table: 6 mm
+    assert auto_plane_height(rng.normal(0, 0.006, 5000)) == PLANE_HEIGHT_RANGE[1]       # noisy stereo: 12 mm
+    assert auto_plane_height(np.zeros(10)) == PLANE_HEIGHT_RANGE[1]                     # too few table pixels
+    depth, _ = sphere_scene(CENTRE, RADIUS)
+    res = crop_points(depth, K_VGA, box=(240, 150, 170, 170), remove_support_plane=True)
+    assert PLANE_HEIGHT_RANGE[0] <= res.diagnostics["plane_height"] <= PLANE_HEIGHT_RANGE[1]
+    fixed = crop_points(depth, K_VGA, box=(240, 150, 170, 170), remove_support_plane=True, plane_height=0.01)
+    assert fixed.diagnostics["plane_height"] == 0.01
+    with pytest.raises(ConfigError):
+        crop_points(depth, K_VGA, box=(240, 150, 170, 170), plane_height="low")
