@@ -185,3 +185,23 @@ def test_occluded_view_hides_part_of_the_object_and_counts_a_part():
         rows, cols = np.nonzero(v.mask)
         assert rows.min() == y and cols.min() == x and rows.max() == y + h - 1 and cols.max() == x + w - 1
     assert any(v.part_pixels > 0 for v in views)
+
+
+def test_an_occluded_view_of_an_object_resting_on_its_side():
+    """``rest``: the object lies turned by that rotation on the table; the view's R includes it, ``up`` stays the
+    table normal, and the depth still shows the object at the pose the view reports."""
+    from equipose.train.data.occluded import render_occluded
+    from equipose.train.data.render import surfels_from_points
+    rng = np.random.default_rng(5)
+    a, h = rng.uniform(0, 2 * np.pi, 4000), rng.uniform(-0.06, 0.06, 4000)
+    p = np.c_[0.03 * np.cos(a), 0.03 * np.sin(a), h]                            # a can's side, axis z
+    n, r = surfels_from_points(p)
+    side = np.array([[1.0, 0, 0], [0, 0, -1.0], [0, 1.0, 0]])                  # 90° about x
+    v = render_occluded({"points": p, "normals": n, "radii": r}, np.random.default_rng(2), occluder=0.0, rest=side)
+    assert v is not None
+    assert abs(float(v.R[:, 2] @ v.up)) < 1e-9                                 # the axis lies flat on the table
+    rows, cols = np.nonzero(v.mask)
+    z = v.depth[rows, cols].astype(np.float64) / 1000.0
+    pts = np.c_[(cols - v.K[0, 2]) * z / v.K[0, 0], (rows - v.K[1, 2]) * z / v.K[1, 1], z]
+    local = (pts - v.t) @ v.R                                                   # back into the category frame
+    assert np.median(np.abs(np.hypot(local[:, 0], local[:, 1]) - 0.03)) < 0.004   # on the can's side

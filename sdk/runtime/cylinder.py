@@ -27,10 +27,11 @@ SWITCH_ANGLE_DEG = 45.0     # only an axis this far from the network's can repla
 SWITCH_RATIO = 0.85         # ... and only when its cost is below this fraction of the network axis' cost
 
 
-def cylinder_axis(points, axis0, k: int = 12, normals=None) -> tuple:
+def cylinder_axis(points, axis0, k: int = 12, normals=None, ratio: float = SWITCH_RATIO) -> tuple:
     """(axis [3], cost of ``axis0``, cost of the chosen axis) for the points of one cylinder-like object: the network's
     ``axis0`` unless a principal direction of the normals ≥ ``SWITCH_ANGLE_DEG`` away fits the cylinder pattern
-    clearly better (cost < ``SWITCH_RATIO`` × cost of ``axis0``): the lying / upright confusion of squat tins.
+    clearly better (cost < ``ratio`` × cost of ``axis0``, default ``SWITCH_RATIO``): the lying / upright confusion of
+    squat tins.
     ``normals`` [N, 3]: the points' unit normals when already computed (else from the ``k`` nearest neighbours)."""
     n = point_normals(points, k) if normals is None else np.asarray(normals, np.float64)
     a0 = np.asarray(axis0, np.float64) / np.linalg.norm(axis0)
@@ -41,7 +42,7 @@ def cylinder_axis(points, axis0, k: int = 12, normals=None) -> tuple:
         return a0, c0, c0
     costs = [_cost(n, v) for v in far]
     best = far[int(np.argmin(costs))]
-    if min(costs) >= SWITCH_RATIO * c0:
+    if min(costs) >= ratio * c0:
         return a0, c0, c0
     return (best if best @ a0 >= 0 else -best), c0, min(costs)
 

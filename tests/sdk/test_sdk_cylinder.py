@@ -114,3 +114,17 @@ def test_the_side_normals_refine_a_cups_axis():
         n = point_normals(P, 12)
         assert np.degrees(np.arccos(min(1.0, refine_side_axis(n, off) @ R[:, 2]))) < bound
         assert np.degrees(np.arccos(min(1.0, refine_side_axis(n, -off) @ -R[:, 2]))) < bound
+
+
+def test_an_up_prior_the_can_contradicts_is_flagged():
+    """Under an up prior the stage keeps the pose; a can lying on its side while the prior says it stands is flagged
+    ``ambiguous`` (extra ``up_contradicted``), a standing one is not."""
+    from scipy.spatial.transform import Rotation
+    R = Rotation.from_euler("xyz", [60, 10, 20], degrees=True).as_matrix()    # the can's true pose (camera frame)
+    P = view(closed_cylinder(0.033, 0.12), R)
+    lying = R @ Rotation.from_euler("x", 90.0, degrees=True).as_matrix()       # what a wrong "stands" prior gives
+    for pose, contradicted in ((R, False), (lying, True)):
+        state = posed_state(P, pose, np.zeros(3), up=pose[:, 2])
+        CylinderStage(unsigned=True).run(state)
+        assert np.allclose(state.rotation, pose)                                # the prior's axis is kept
+        assert state.extras["up_contradicted"] is contradicted and state.ambiguous is contradicted

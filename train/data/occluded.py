@@ -57,15 +57,19 @@ def panel_surfels(centre: np.ndarray, right: np.ndarray, width: float, height: f
 
 def render_occluded(shape: dict, rng: np.random.Generator, *, distance_m=(0.5, 1.2), occluder: float = 0.7,
                     sensor: SensorModel | None = SensorModel(), size=(640, 480), fov_y_deg: float = 60.0,
-                    min_visible: float = 0.35, tries: int = 8, part=None) -> OccludedView | None:
+                    min_visible: float = 0.35, tries: int = 8, part=None, rest=None) -> OccludedView | None:
     """One view of a surfel ``shape`` ({"points", "normals", "radii"}, metres, category frame) on a table, with an
     occluder panel in front of it with probability ``occluder``. ``part``: optional [P] bool over the shape's points
-    whose visible pixels the view counts (``part_pixels``: in front of everything else within 2 mm).
+    whose visible pixels the view counts (``part_pixels``: in front of everything else within 2 mm). ``rest``:
+    optional [3, 3] rotation the object rests in on the table (category frame → table frame, e.g. a can lying on its
+    side); None: standing upright. The view's ``R`` then includes it, and ``up`` stays the table normal.
 
     Views where less than ``min_visible`` of the object's pixels stay visible (or fewer than 150 pixels) are drawn
     again, up to ``tries`` times; returns None when none qualifies.
     """
-    pts = np.asarray(shape["points"], np.float64)                              # [P, 3] metres
+    Q = np.eye(3) if rest is None else np.asarray(rest, np.float64)            # [3, 3] category → table frame
+    pts = np.asarray(shape["points"], np.float64) @ Q.T                        # [P, 3] metres, resting
+    normals = np.asarray(shape["normals"], np.float64) @ Q.T                   # [P, 3]
     r = float(np.linalg.norm(pts, axis=1).max())
     K = camera_matrix(size[0], size[1], fov_y_deg)
     z_table = float(pts[:, 2].min())
@@ -73,7 +77,7 @@ def render_occluded(shape: dict, rng: np.random.Generator, *, distance_m=(0.5, 1
         az, el = rng.uniform(0.0, 2 * np.pi), np.radians(rng.uniform(15.0, 60.0))
         dist = rng.uniform(*distance_m)
         R, t = look_at_pose(az, el, dist)                                      # object → camera
-        d_obj = splat_surfels(pts @ R.T + t, np.asarray(shape["normals"]) @ R.T, shape["radii"], K, size)
+        d_obj = splat_surfels(pts @ R.T + t, normals @ R.T, shape["radii"], K, size)
         tab = table_surfels(z_table, max(3.0 * r, 0.4), max(0.03 * r, 0.004))
         d_tab = splat_surfels(tab["points"] @ R.T + t, tab["normals"] @ R.T, tab["radii"], K, size)
         d_occ = np.full_like(d_obj, np.inf)
@@ -96,13 +100,13 @@ def render_occluded(shape: dict, rng: np.random.Generator, *, distance_m=(0.5, 1
         part_px = 0
         if part is not None and np.any(part):
             sel = np.asarray(part, bool)
-            d_part = splat_surfels(pts[sel] @ R.T + t, np.asarray(shape["normals"])[sel] @ R.T,
+            d_part = splat_surfels(pts[sel] @ R.T + t, normals[sel] @ R.T,
                                    np.asarray(shape["radii"])[sel], K, size)
             part_px = int(np.count_nonzero(np.isfinite(d_part) & (d_part <= d + 0.002)))
         if sensor is not None:
             d = apply_sensor(d, rng, sensor)
         depth, _ = depth_to_uint16(np.where(d > 0, d, np.inf))
         mask = mask & (depth > 0)
-        return OccludedView(depth=depth, mask=mask, full_mask=full, box=mask_box(mask), K=K, R=R, t=t,
+        return OccludedView(depth=depth, mask=mask, full_mask=full, box=mask_box(mask), K=K, R=R @ Q, t=t,
                             occluded=1.0 - n_vis / max(n_full, 1), up=R[:, 2].copy(), part_pixels=part_px)
     return None

@@ -37,6 +37,7 @@ __all__ = ["RIGHT_DEG", "RIGHT_M", "RIGHT_DIAG", "collect", "collect_modelnet", 
 RIGHT_DEG = 10.0        # a right pose: rotation error ≤ this (modulo symmetry) ...
 RIGHT_M = 0.02          # ... and centre error ≤ this (metres)
 RIGHT_DIAG = 0.05       # ModelNet models: centre error ≤ this share of the bounding-box diagonal instead
+LYING_EVERY = 3         # cylinders: every third calibration view lies on its side
 WRONG_DEG = 30.0        # confident-wrong: error above this with confidence > 0.5, not flagged ambiguous
 L2 = 1e-3               # ridge on the standardised weights (per mean log-loss)
 
@@ -56,7 +57,9 @@ def collect(model, views: int, seed: int = 0, data_root=None, progress: bool = T
     "centre_err" (m), "right" (bool),
     "confidence", "ambiguous", "occluded" (true hidden share), "ms", **evidence} (+ mugs: "handle_truth_px" the
     handle's visible pixels in the render, "handle_visible", "handle_points" the result's); views cycle through the
-    test shapes of the model's tabletop category."""
+    test shapes of the model's tabletop category. Cylinders (``shape_prior`` "cylinder": cans) also rest on their
+    side: every ``LYING_EVERY``-th view lies (``"rest"``: "lying", else "standing"), since a fallen can is as
+    common on a table as a standing one."""
     from tqdm import tqdm
 
     from equipose import PoseEstimator
@@ -76,10 +79,13 @@ def collect(model, views: int, seed: int = 0, data_root=None, progress: bool = T
     if handle is not None:                                                     # each shape's own handle points
         from equipose.core.handles import handle_zone_mask
         parts = [handle_zone_mask(src[1]["points"], src[1]["points"], handle) for src in sources]
+    lying = est.metadata.get("shape_prior") == "cylinder"
+    on_side = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])  # 90° about x: the axis horizontal
     rows = []
     for v in tqdm(range(views), desc=f"confidence {est.category}", disable=not progress):
         s = v % len(sources)
-        view = render_occluded(sources[s][1], np.random.default_rng([seed, v]), part=parts[s])
+        rest = on_side if lying and v % LYING_EVERY == LYING_EVERY - 1 else None
+        view = render_occluded(sources[s][1], np.random.default_rng([seed, v]), part=parts[s], rest=rest)
         if view is None:
             continue
         for prompt in ("box", "mask"):
@@ -94,7 +100,8 @@ def collect(model, views: int, seed: int = 0, data_root=None, progress: bool = T
                 rot = float(rotation_errors(r.rotation[None], view.R[None], symmetry, unsigned_axis=unsigned)[0])
                 centre = float(np.linalg.norm(r.translation - view.t))
                 axis = float(rotation_errors(r.rotation[None], view.R[None], "continuous:z", unsigned_axis=unsigned)[0])
-                rows.append({"shape": s, "view": v, "prompt": prompt, "up": up or "none", "rot_err": rot, "axis_err": axis,
+                rows.append({"shape": s, "view": v, "prompt": prompt, "up": up or "none",
+                             "rest": "standing" if rest is None else "lying", "rot_err": rot, "axis_err": axis,
                              "centre_err": centre, "right": bool(rot <= RIGHT_DEG and centre <= RIGHT_M),
                              "confidence": float(r.confidence), "ambiguous": bool(r.ambiguous),
                              "occluded": float(view.occluded), "ms": ms, **r.extras["evidence"]})
