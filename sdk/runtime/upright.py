@@ -22,8 +22,8 @@ from equipose.runtime.hypotheses import (AMBIGUOUS_MARGIN, CONFIDENCE_MIN_ANGLE_
                                          Selection, symmetric_distance_deg)
 from equipose.runtime.refine import icp_multi
 
-__all__ = ["UP_TOLERANCE_DEG", "UP_AXIS", "check_up", "upright_icp", "select_upright", "resolve_plane_up", "resolve_support_plane",
-           "per_object_up"]
+__all__ = ["UP_TOLERANCE_DEG", "UP_AXIS", "check_up", "upright_icp", "select_upright", "resolve_plane_up",
+           "resolve_support_plane", "per_object_up"]
 
 UP_TOLERANCE_DEG = 40.0    # hypotheses whose up axis is this close to ``up`` are refined (≈ 7 of the 60)
 UP_AXIS = 2                # the category frame's up axis (+z) for every equipose category
