@@ -27,16 +27,17 @@ SWITCH_ANGLE_DEG = 45.0     # only an axis this far from the network's can repla
 SWITCH_RATIO = 0.85         # ... and only when its cost is below this fraction of the network axis' cost
 
 
-def cylinder_axis(points, axis0, k: int = 12, normals=None, ratio: float = SWITCH_RATIO) -> tuple:
+def cylinder_axis(points, axis0, k: int = 12, normals=None, ratio: float = SWITCH_RATIO, candidates=()) -> tuple:
     """(axis [3], cost of ``axis0``, cost of the chosen axis) for the points of one cylinder-like object: the network's
-    ``axis0`` unless a principal direction of the normals ≥ ``SWITCH_ANGLE_DEG`` away fits the cylinder pattern
-    clearly better (cost < ``ratio`` × cost of ``axis0``, default ``SWITCH_RATIO``): the lying / upright confusion of
-    squat tins.
+    ``axis0`` unless a principal direction of the normals, or one of the ``candidates`` (unit [3] directions, e.g. the
+    normal of the table it stands on), ≥ ``SWITCH_ANGLE_DEG`` away fits the cylinder pattern clearly better (cost <
+    ``ratio`` × cost of ``axis0``, default ``SWITCH_RATIO``): the lying / upright confusion of squat tins.
     ``normals`` [N, 3]: the points' unit normals when already computed (else from the ``k`` nearest neighbours)."""
     n = point_normals(points, k) if normals is None else np.asarray(normals, np.float64)
     a0 = np.asarray(axis0, np.float64) / np.linalg.norm(axis0)
     _, vecs = np.linalg.eigh(n.T @ n)                                        # principal directions of the normals
-    far = [v for v in vecs.T if abs(float(v @ a0)) < np.cos(np.radians(SWITCH_ANGLE_DEG))]
+    options = list(vecs.T) + [np.asarray(c, np.float64) / np.linalg.norm(c) for c in candidates]
+    far = [v for v in options if abs(float(v @ a0)) < np.cos(np.radians(SWITCH_ANGLE_DEG))]
     c0 = _cost(n, a0)
     if not far:
         return a0, c0, c0

@@ -128,3 +128,18 @@ def test_an_up_prior_the_can_contradicts_is_flagged():
         CylinderStage(unsigned=True).run(state)
         assert np.allclose(state.rotation, pose)                                # the prior's axis is kept
         assert state.extras["up_contradicted"] is contradicted and state.ambiguous is contradicted
+
+
+def test_the_table_normal_is_a_candidate_axis():
+    """A standing squat tin the network laid down: given the table normal as a candidate, the stage's fit takes it
+    (exactly that direction) when it fits the cylinder pattern clearly better; a worse candidate is ignored."""
+    from scipy.spatial.transform import Rotation
+    R = Rotation.from_euler("xyz", [35, -10, 50], degrees=True).as_matrix()
+    P = view(closed_cylinder(0.06, 0.05, seed=2), R)                            # squat: wider than tall
+    P = P + np.random.default_rng(1).normal(0, 0.0004, P.shape)                 # sensor noise: eigenvectors drift
+    lying = R[:, 0]
+    axis, c0, c = cylinder_axis(P, lying, candidates=(R[:, 2],))
+    assert c < c0 and np.allclose(abs(axis @ R[:, 2]), 1.0, atol=1e-12)
+    worse = Rotation.from_rotvec(np.radians(60.0) * R[:, 1]).as_matrix() @ R[:, 2]
+    axis2, _, _ = cylinder_axis(P, R[:, 2], candidates=(worse,))
+    assert abs(axis2 @ worse) < 0.9                                             # not taken

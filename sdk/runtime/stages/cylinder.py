@@ -56,7 +56,8 @@ class CylinderStage(Stage):
             state.extras["up_contradicted"] = contradicted
             state.ambiguous = bool(state.ambiguous or contradicted)
             return
-        a, _, _ = cylinder_axis(state.points, a0, normals=normals)
+        table = () if state.support_up is None else (state.support_up,)         # standing is a candidate too
+        a, _, _ = cylinder_axis(state.points, a0, normals=normals, candidates=table)
         if not self.unsigned:                                                   # a cup or a mug
             a = refine_side_axis(normals, a)
         R = rotation_between(a0, a) @ state.rotation                            # [3, 3]
