@@ -160,10 +160,14 @@ def _columns(features, names) -> list:
     return [j for j, f in enumerate(features) if f in names]
 
 
+def _signs(features) -> dict:
+    """``fit_logistic``'s sign bounds for ``features``: the ``MONOTONE`` weights kept ≥ 0, the ``AGAINST`` ones ≤ 0."""
+    return {"nonnegative": _columns(features, MONOTONE), "nonpositive": _columns(features, AGAINST)}
+
+
 def _fit(rows: list, features) -> tuple:
-    """``fit_logistic`` of ``rows`` on ``features``: the ``MONOTONE`` weights kept ≥ 0, the ``AGAINST`` ones ≤ 0."""
-    return fit_logistic(*_matrix(rows, features), nonnegative=_columns(features, MONOTONE),
-                        nonpositive=_columns(features, AGAINST))
+    """``fit_logistic`` of ``rows`` on ``features`` within their sign bounds (``_signs``)."""
+    return fit_logistic(*_matrix(rows, features), **_signs(features))
 
 
 def _matrix(rows: list, features) -> tuple:
@@ -248,8 +252,7 @@ def grouped_log_loss(rows: list, features, folds: int = 5) -> float:
         out = shapes % folds == k
         if not out.any() or out.all() or len(np.unique(y[~out])) < 2:
             continue
-        w, b = fit_logistic(X[~out], y[~out], nonnegative=_columns(features, MONOTONE),
-                            nonpositive=_columns(features, AGAINST))
+        w, b = fit_logistic(X[~out], y[~out], **_signs(features))
         p = np.clip(predict_logistic(X[out], w, b), 1e-6, 1 - 1e-6)
         losses.append(-np.mean(y[out] * np.log(p) + (1 - y[out]) * np.log(1 - p)))
     return float(np.mean(losses)) if losses else float("inf")
