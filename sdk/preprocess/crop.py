@@ -185,14 +185,14 @@ def _above_plane(win, valid, ry, cx, off, plane_height) -> tuple:
 
 
 @njit(cache=True)
-def _near_plane_heights(win, valid, ry, cx, off, limit, step) -> np.ndarray:
-    """[Q] float32 heights (m) of the ``valid`` window pixels on every ``step``-th row and column within ``limit`` of
-    the plane (``_plane_heights``'s separable terms): the table around the object, where its depth noise shows."""
+def _near_plane_heights(win, valid, ry, cx, off, limit) -> np.ndarray:
+    """[Q] float32 heights (m) of the ``valid`` window pixels within ``limit`` of the plane (``_plane_heights``'s
+    separable terms): the table around the object, where its depth noise shows."""
     h, w = win.shape
-    out = np.empty(((h + step - 1) // step) * ((w + step - 1) // step), np.float32)
+    out = np.empty(h * w, np.float32)
     n = 0
-    for r in range(0, h, step):
-        for c in range(0, w, step):
+    for r in range(h):
+        for c in range(w):
             if valid[r, c]:
                 z = win[r, c] * np.float32(ry[r] + cx[c]) + off
                 if -limit < z < limit:
@@ -347,7 +347,7 @@ def crop_points(depth, K, *, box=None, mask=None, depth_unit="mm", image_size=No
             terms = _plane_heights(plane, Kf, x0, y0, x1, y1)                   # (ry [h], cx [w], offset)
             if auto_height:
                 plane_height = auto_plane_height(_near_plane_heights(win, valid, *terms,
-                                                                     np.float32(PLANE_HEIGHT_RANGE[1]), 1))
+                                                                     np.float32(PLANE_HEIGHT_RANGE[1])))
             diag["plane_height"] = round(float(plane_height), 5)
             above, n_above = _above_plane(win, valid, *terms, np.float32(plane_height))  # [h, w], count
             if n_above >= min_points:
