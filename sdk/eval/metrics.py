@@ -17,8 +17,8 @@ import numpy as np
 from equipose.core.errors import ConfigError
 from equipose.core.geometry import axis_angle_deg, rotation_angle_deg
 
-__all__ = ["auroc", "rotation_errors", "translation_errors", "summarize", "FLIP_DEG", "ROW_KEYS", "METRICS", "register_metric",
-           "unregister_metric", "row_keys"]
+__all__ = ["auroc", "rotation_errors", "translation_errors", "summarize", "FLIP_DEG", "ROW_KEYS", "METRICS",
+           "register_metric", "unregister_metric", "row_keys"]
 
 FLIP_DEG = 150.0
 _AXES = {"x": 0, "y": 1, "z": 2}
