@@ -24,12 +24,17 @@ from equipose.core.errors import InvalidPointsError
 from equipose.core.order_statistics import sorted_percentile, sorted_quantile
 
 __all__ = ["HandleFit", "fit_handle", "align_handle", "turn_about_z", "handle_zone_count", "handle_zone_mask", "HANDLE_MIN_POINTS",
-           "HANDLE_MIN_FRACTION", "HANDLE_MIN_SHARE", "HANDLE_MIN_MASS"]
+           "HANDLE_MIN_FRACTION", "HANDLE_MIN_SHARE", "HANDLE_MIN_MASS", "HANDLE_MAX_RATIO",
+           "HANDLE_MIN_CLUSTERED", "clustered_count"]
 
 HANDLE_MIN_SHARE = 0.5           # fit_handle's window share for a handle seen in a partial view (complete clouds: 0.45)
 HANDLE_MIN_MASS = 0.008          # ... and excess per point (lower admits silhouette noise of real depth as handles)
 HANDLE_MIN_POINTS = 4            # observed points inside the handle zone for the handle to count as seen ...
 HANDLE_MIN_FRACTION = 0.01       # ... and at least this fraction of the observed points
+HANDLE_MIN_CLUSTERED = 3         # ... of which at least this many lie in a cluster (``clustered_count``): a handle is
+                                 # a surface, flying pixels at an occluder's edge are scattered
+HANDLE_MAX_RATIO = 2.6           # radius / body radius a handle reaches at most (training mugs: 1.58–2.45): points
+                                 # farther out are something else (an occluder's edge, flying pixels)
 
 
 def _height_bands(z: np.ndarray, bands: int) -> np.ndarray:
@@ -55,15 +60,18 @@ class HandleFit:
 
 
 def fit_handle(points: np.ndarray, *, bands: int = 6, bins: int = 36, min_share: float = 0.45,
-               min_mass: float = 0.008, centre=None) -> HandleFit:
+               min_mass: float = 0.008, centre=None, max_ratio: float | None = None) -> HandleFit:
     """Handle azimuth of an upright cup cloud [N, 3] (see the module docstring). ``centre``: a first guess (x, y) of
-    the body axis (default: the points' median; a posed partial view passes its origin). One compiled pass."""
+    the body axis (default: the points' median; a posed partial view passes its origin). ``max_ratio``: points
+    farther than this × their band's median radius from the axis count as no excess (None: no bound). One compiled
+    pass."""
     p = np.ascontiguousarray(points, np.float64)
     if p.ndim != 2 or p.shape[1] != 3 or len(p) < 50:
         raise InvalidPointsError(f"fit_handle needs an [N ≥ 50, 3] cloud, got shape {p.shape}")
     c = np.median(p[:, :2], axis=0) if centre is None else np.asarray(centre, np.float64).reshape(2)
     edges = _height_bands(p[:, 2], bands)                                          # [bands + 1]
-    azimuth, share, mass, cx, cy = _fit_handle(p, edges, int(bins), float(c[0]), float(c[1]))
+    cap = np.inf if max_ratio is None else float(max_ratio)
+    azimuth, share, mass, cx, cy = _fit_handle(p, edges, int(bins), float(c[0]), float(c[1]), cap)
     return HandleFit(azimuth, share, mass, (cx, cy), share >= min_share and mass >= min_mass)
 
 
@@ -78,10 +86,10 @@ def _band_radius(r, band, bands):
 
 
 @njit(cache=True)
-def _fit_handle(p, edges, bins, cx, cy) -> tuple:
+def _fit_handle(p, edges, bins, cx, cy, cap) -> tuple:
     """(azimuth, share, mass, centre x, centre y) of ``fit_handle`` for the cloud ``p`` [N, 3] float64 with height
     band ``edges`` [bands + 1] (numpy's quantiles: numba's may differ in the last bit, which moves points between
-    bands)."""
+    bands) and the excess bound ``cap`` (× band radius)."""
     bands = len(edges) - 1
     band = np.minimum(np.maximum(np.searchsorted(edges, p[:, 2]) - 1, 0), bands - 1)   # [N]
     N = len(p)
@@ -108,7 +116,8 @@ def _fit_handle(p, edges, bins, cx, cy) -> tuple:
         dx, dy = p[i, 0] - cx, p[i, 1] - cy
         r[i] = np.sqrt(dx * dx + dy * dy)
         az[i] = np.arctan2(dy, dx)                                             # radians
-    excess = np.maximum(r / np.maximum(_band_radius(r, band, bands), 1e-12) - 1.15, 0.0)   # [N]
+    ratio = r / np.maximum(_band_radius(r, band, bands), 1e-12)                # [N]
+    excess = np.where(ratio <= cap, np.maximum(ratio - 1.15, 0.0), 0.0)       # [N]
     hist = np.zeros(bins)
     for i in range(N):
         hist[int((az[i] + np.pi) / (2 * np.pi) * bins) % bins] += excess[i]
@@ -143,12 +152,14 @@ def align_handle(points: np.ndarray, fit: HandleFit | None = None) -> np.ndarray
     return np.asarray(points, np.float64) @ turn_about_z(-fit.azimuth).T
 
 
-def handle_zone_count(observed_obj: np.ndarray, canonical_obj: np.ndarray, direction) -> int:
+def handle_zone_count(observed_obj: np.ndarray, canonical_obj: np.ndarray, direction,
+                      max_ratio: float | None = None) -> int:
     """How many observed points fall where the handle is (``handle_zone_mask``'s count)."""
-    return int(np.count_nonzero(handle_zone_mask(observed_obj, canonical_obj, direction)))
+    return int(np.count_nonzero(handle_zone_mask(observed_obj, canonical_obj, direction, max_ratio)))
 
 
-def handle_zone_mask(observed_obj: np.ndarray, canonical_obj: np.ndarray, direction) -> np.ndarray:
+def handle_zone_mask(observed_obj: np.ndarray, canonical_obj: np.ndarray, direction,
+                     max_ratio: float | None = None) -> np.ndarray:
     """[P] bool: which observed points fall where the handle is, both clouds in the category frame.
 
     Convention: ``observed_obj`` [P, 3] and ``canonical_obj`` [M, 3] in the same unit, category frame (z up, the
@@ -156,7 +167,8 @@ def handle_zone_mask(observed_obj: np.ndarray, canonical_obj: np.ndarray, direct
     the canonical shape (``fit_handle``'s circle fit, with the canonical points turned so ``direction`` is +x; the body
     radius of a height band is the 90th percentile radius of its points away from the handle); the handle zone is the
     part of space beyond 1.15× the body radius of the point's height band, within ±40° of the
-    handle azimuth and inside the canonical shape's height range. Points there cannot belong to the body: if the pose
+    handle azimuth, inside the canonical shape's height range and (``max_ratio`` given) within ``max_ratio`` × the
+    body radius. Points there cannot belong to the body: if the pose
     were turned about the axis, or the handle were hidden, the zone would be empty.
     """
     obs = np.asarray(observed_obj, np.float64)
@@ -168,13 +180,14 @@ def handle_zone_mask(observed_obj: np.ndarray, canonical_obj: np.ndarray, direct
     obs, can = obs @ turn.T, can @ turn.T
     fit = fit_handle(can)
     edges = _height_bands(can[:, 2], 6)
-    return _zone_mask(obs, can, edges, float(fit.centre[0]), float(fit.centre[1]))
+    cap = np.inf if max_ratio is None else float(max_ratio)
+    return _zone_mask(obs, can, edges, float(fit.centre[0]), float(fit.centre[1]), cap)
 
 
 @njit(cache=True)
-def _zone_mask(obs, can, edges, cx, cy):
+def _zone_mask(obs, can, edges, cx, cy, cap):
     """``handle_zone_mask`` of ``obs`` [P, 3] against ``can`` [M, 3], both turned so the handle lies along +x, with
-    the canonical height band ``edges`` [B + 1] and the body axis at (``cx``, ``cy``)."""
+    the canonical height band ``edges`` [B + 1], the body axis at (``cx``, ``cy``) and the outer bound ``cap``."""
     bands = len(edges) - 1
     M = len(can)
     rc, off = np.empty(M), np.empty(M, np.bool_)
@@ -197,5 +210,44 @@ def _zone_mask(obs, can, edges, cx, cy):
         vx, vy = obs[i, 0] - cx, obs[i, 1] - cy
         r = np.sqrt(vx * vx + vy * vy)
         az = np.degrees(abs(np.arctan2(vy, vx)))
-        out[i] = edges[0] <= obs[i, 2] <= edges[-1] and r > 1.15 * body[b] and az < 40.0
+        out[i] = edges[0] <= obs[i, 2] <= edges[-1] and 1.15 * body[b] < r <= cap * body[b] and az < 40.0
     return out
+
+
+def clustered_count(points: np.ndarray, member: np.ndarray, *, radius_factor: float = 2.5, neighbours: int = 3) -> int:
+    """How many of the ``member`` points have ≥ ``neighbours`` other members within ``radius_factor`` × the cloud's
+    median nearest-neighbour spacing: the members that lie on a surface patch rather than scattered (e.g. a handle's
+    points against flying pixels at an occluder's edge).
+
+    Convention: ``points`` [N, 3] any unit; ``member`` [N] bool.
+    """
+    p = np.ascontiguousarray(points, np.float64)
+    m = np.asarray(member, bool)
+    if p.ndim != 2 or p.shape[1] != 3 or m.shape != (len(p),):
+        raise InvalidPointsError(f"clustered_count needs [N, 3] points and an [N] mask, got {p.shape}, {m.shape}")
+    if len(p) < 2 or not m.any():
+        return 0
+    return int(_clustered_count(p, np.flatnonzero(m), float(radius_factor), int(neighbours)))
+
+
+@njit(cache=True)
+def _clustered_count(p, members, radius_factor, neighbours):
+    """``clustered_count`` of the points ``p`` [N, 3] at indices ``members`` [Z] (brute force: N ≤ a few thousand)."""
+    N = len(p)
+    nn = np.empty(N)
+    for i in range(N):                                                         # nearest-neighbour spacing
+        best = np.inf
+        for j in range(N):
+            if j != i:
+                best = min(best, (p[i, 0] - p[j, 0]) ** 2 + (p[i, 1] - p[j, 1]) ** 2 + (p[i, 2] - p[j, 2]) ** 2)
+        nn[i] = np.sqrt(best)
+    r2 = (radius_factor * np.median(nn)) ** 2
+    count = 0
+    for a in range(len(members)):
+        i, close = members[a], 0
+        for b in range(len(members)):
+            j = members[b]
+            if j != i and (p[i, 0] - p[j, 0]) ** 2 + (p[i, 1] - p[j, 1]) ** 2 + (p[i, 2] - p[j, 2]) ** 2 <= r2:
+                close += 1
+        count += close >= neighbours
+    return count

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from equipose.core.handles import HANDLE_MIN_MASS, HANDLE_MIN_SHARE, fit_handle, turn_about_z
+from equipose.core.handles import HANDLE_MAX_RATIO, HANDLE_MIN_MASS, HANDLE_MIN_SHARE, fit_handle, turn_about_z
 
 __all__ = ["resolve_handle"]
 
@@ -26,7 +26,8 @@ def resolve_handle(direction, model_points, rotation, translation) -> tuple:
     """
     R = np.asarray(rotation, np.float64)
     observed = (np.asarray(model_points, np.float64) - np.asarray(translation, np.float64)) @ R   # [N, 3] category
-    fit = fit_handle(observed, min_share=HANDLE_MIN_SHARE, min_mass=HANDLE_MIN_MASS, centre=(0.0, 0.0))
+    fit = fit_handle(observed, min_share=HANDLE_MIN_SHARE, min_mass=HANDLE_MIN_MASS, centre=(0.0, 0.0),
+                     max_ratio=HANDLE_MAX_RATIO)
     if not fit.has_handle:
         return R, False, fit
     d = np.asarray(direction, np.float64)

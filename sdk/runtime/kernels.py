@@ -33,7 +33,7 @@ def load_kernels() -> float:
     if _loaded_s is not None:
         return 0.0
     from equipose.core.geometry import farthest_point_order
-    from equipose.core.handles import fit_handle, handle_zone_mask
+    from equipose.core.handles import clustered_count, fit_handle, handle_zone_mask
     from equipose.core.icp import icp_multi, icp_point_to_plane
     from equipose.core.kernel_weights import kernel_inputs
     from equipose.core.neighbourhoods import (NeighbourhoodSpec, nearest_neighbourhoods, neighbourhood_specs,
@@ -86,6 +86,7 @@ def load_kernels() -> float:
     point_normals(x)
     fit_handle(rng.normal(size=(60, 3)))
     handle_zone_mask(rng.normal(size=(60, 3)), rng.normal(size=(60, 3)), [1.0, 0.0, 0.0])
+    clustered_count(x, np.arange(len(x)) < 4)
     _loaded_s = time.perf_counter() - t0
     if _loaded_s > 2.0:
         _log.info("compiled the geometry kernels in %.0f s (cached for later runs)", _loaded_s)

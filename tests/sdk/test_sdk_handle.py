@@ -5,7 +5,8 @@ import numpy as np
 import pytest
 
 from equipose.core.errors import InvalidPointsError, MetadataError
-from equipose.core.handles import align_handle, fit_handle, handle_zone_count, turn_about_z
+from equipose.core.handles import (HANDLE_MAX_RATIO, align_handle, clustered_count, fit_handle, handle_zone_count,
+                                   handle_zone_mask, turn_about_z)
 
 
 def synthetic_mug(azimuth_deg=0.0, radius=0.04, height=0.10, n=3000, handle=True, seed=0):
@@ -59,6 +60,36 @@ def test_handle_zone_sees_the_handle_only_where_it_is():
     assert handle_zone_count(turned, canonical @ q.T, [0, 1, 0]) > 50
     with pytest.raises(InvalidPointsError):
         handle_zone_count(toward, canonical[:10], [1, 0, 0])
+
+
+def test_a_strip_beyond_any_handle_is_not_the_handle():
+    """An occluder's edge standing 3.5 body radii off the axis outweighs a real handle unless the fit is bounded."""
+    rng = np.random.default_rng(3)
+    mug = synthetic_mug(0.0)
+    y = rng.uniform(-0.03, 0.03, 600)
+    strip = np.c_[np.full(600, -0.14), y, rng.uniform(-0.05, 0.05, 600)]     # at azimuth 180°, 0.14 m out
+    cloud = np.vstack([mug, strip])
+    assert abs(np.degrees(fit_handle(cloud).azimuth)) > 150.0                 # unbounded: the strip wins
+    bounded = fit_handle(cloud, max_ratio=HANDLE_MAX_RATIO)
+    assert bounded.has_handle and abs(np.degrees(bounded.azimuth)) < 5.0
+    canonical = synthetic_mug(0.0, n=800, seed=1)
+    zone = handle_zone_mask(strip @ turn_about_z(np.pi).T, canonical, [1, 0, 0])    # the strip turned onto +x
+    assert zone.sum() > 500
+    assert not handle_zone_mask(strip @ turn_about_z(np.pi).T, canonical, [1, 0, 0], HANDLE_MAX_RATIO).any()
+
+
+def test_clustered_count_tells_a_surface_from_scattered_points():
+    rng = np.random.default_rng(0)
+    body = synthetic_mug(0.0, n=400, handle=False)
+    patch = np.c_[rng.uniform(0.05, 0.06, 40), rng.uniform(-0.005, 0.005, 40), rng.uniform(-0.02, 0.02, 40)]
+    scattered = np.c_[rng.uniform(0.05, 0.09, 8), rng.uniform(-0.04, 0.04, 8), rng.uniform(-0.05, 0.05, 8)]
+    for extra, expected in ((patch, lambda c: c >= 30), (scattered, lambda c: c == 0)):
+        cloud = np.vstack([body, extra])
+        member = np.r_[np.zeros(len(body), bool), np.ones(len(extra), bool)]
+        assert expected(clustered_count(cloud, member)), clustered_count(cloud, member)
+    assert clustered_count(body, np.zeros(len(body), bool)) == 0
+    with pytest.raises(InvalidPointsError):
+        clustered_count(body, np.ones(3, bool))
 
 
 def test_resolve_handle_turns_the_pose_to_the_seen_handle():

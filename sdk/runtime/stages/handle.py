@@ -10,7 +10,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from equipose.core.handles import HANDLE_MIN_FRACTION, HANDLE_MIN_POINTS, handle_zone_count
+from equipose.core.handles import (HANDLE_MAX_RATIO, HANDLE_MIN_CLUSTERED, HANDLE_MIN_FRACTION, HANDLE_MIN_POINTS,
+                                   clustered_count, handle_zone_mask)
 from equipose.runtime.handle import resolve_handle
 from equipose.runtime.stage import ObjectState, Stage, register_stage
 
@@ -37,8 +38,10 @@ class HandleStage(Stage):
     def run(self, state: ObjectState) -> None:
         R, found, fit = resolve_handle(self.direction, state.points, state.rotation, state.translation)
         observed = (np.asarray(state.points, np.float64) - state.translation) @ R          # [N, 3] category frame
-        count = handle_zone_count(observed, state.canonical_category, self.direction)
-        visible = bool(found and count >= max(HANDLE_MIN_POINTS, HANDLE_MIN_FRACTION * len(observed)))
+        zone = handle_zone_mask(observed, state.canonical_category, self.direction, HANDLE_MAX_RATIO)   # [N]
+        count = int(np.count_nonzero(zone))
+        visible = bool(found and count >= max(HANDLE_MIN_POINTS, HANDLE_MIN_FRACTION * len(observed))
+                       and clustered_count(observed, zone) >= HANDLE_MIN_CLUSTERED)
         state.symmetry = "none"                                                 # the handle fixes the azimuth
         state.set_pose(R)
         state.extras.update(handle_visible=visible, handle_points=int(count),
