@@ -19,7 +19,8 @@ from equipose.core.errors import ConfigError, DepthDtypeError, EmptyDepthError, 
 from equipose.core.order_statistics import median
 from equipose.preprocess.plane import find_support_plane
 from equipose.preprocess.sampling import MIN_POINTS
-from equipose.preprocess.surfaces import box_object_cluster, nearest_depth_cluster, occluded_fraction, surface_segments
+from equipose.preprocess.surfaces import (box_object_cluster, continues_beyond_box, nearest_depth_cluster,
+                                         occluded_fraction, surface_segments)
 from equipose.preprocess.validate import check_box, check_intrinsics, check_mask, depth_to_metres
 
 __all__ = ["CropResult", "check_crop_options", "crop_points", "statistical_outlier_mask", "organized_outlier_mask",
@@ -373,12 +374,14 @@ def crop_points(depth, K, *, box=None, mask=None, depth_unit="mm", image_size=No
         reject_background = box is not None and mask is None
     if reject_background:
         if box is not None:                                                     # the surface the box is drawn around
-            keep, info = box_object_cluster(z, rows, cols, (x0, y0, x1, y1))  # [P] among the depth clusters
+            beyond = continues_beyond_box(d, z, rows, cols, (x0, y0, x1, y1), max(s, 1), float(Kf[1, 1]))  # [P]
+            keep, info = box_object_cluster(z, rows, cols, (x0, y0, x1, y1), beyond=beyond, step=max(s, 1))
             if s and keep.sum() >= min_points:                                  # lattice: then among its surfaces
                 sub = np.nonzero(keep)[0]                                       # [P1]
                 labels, cut = surface_segments(z[sub], rows[sub], cols[sub], s, float(Kf[1, 1]))
                 inner, info2 = box_object_cluster(z[sub], rows[sub], cols[sub], (x0, y0, x1, y1), labels=labels,
-                                                  cut=cut, points=pts[sub], focal=float(Kf[1, 1]))
+                                                  cut=cut, points=pts[sub], focal=float(Kf[1, 1]),
+                                                  beyond=beyond[sub], step=s)
                 keep = np.zeros(len(z), bool)
                 keep[sub[inner]] = True
                 front = info["front_points"] + info2["front_points"]

@@ -14,7 +14,11 @@ from numba import njit
 
 from equipose.core.order_statistics import sorted_median, sorted_percentile
 
-__all__ = ["nearest_depth_cluster", "depth_clusters", "surface_segments", "box_object_cluster", "occluded_fraction"]
+__all__ = ["nearest_depth_cluster", "depth_clusters", "surface_segments", "box_object_cluster", "occluded_fraction",
+           "continues_beyond_box", "CUT_PENALTY"]
+
+CUT_PENALTY = 0.3       # score factor of a candidate whose surface runs on past the box's sides (an occluder)
+CUT_SHARE = 0.5         # ... where this share of its points along the left, right and top sides continue outside
 
 
 def nearest_depth_cluster(z: np.ndarray, gap_m: float = 0.03, rel_gap: float = 0.03,
@@ -130,9 +134,65 @@ def _surface_labels(z, gi, gj, step, focal, min_jump, slant):
     return labels, (cut_i[:n_cut].copy(), cut_j[:n_cut].copy())
 
 
+def continues_beyond_box(depth: np.ndarray, z: np.ndarray, rows: np.ndarray, cols: np.ndarray, box, step: int,
+                         focal: float, min_jump: float = 0.012, slant: float = 4.0) -> np.ndarray:
+    """[P] bool: the points on the box's left, right or top side whose surface runs on outside the box.
+
+    Convention: ``depth`` [H, W] metres (0 = invalid), the whole frame; ``z`` [P] metres, ``rows``, ``cols`` [P] frame
+    pixels of the box's points on a lattice of pitch ``step``; ``box`` (x0, y0, x1, y1), x1 and y1 exclusive;
+    ``focal`` pixels. A point within one lattice pitch of a side continues when the frame's depth 2 pixels beyond
+    that side differs from its own by less than ``surface_segments``' neighbour tolerance over that distance. A
+    detector's box is drawn around its object, so the object ends at the box; an occluder standing in front runs on
+    past it. The bottom side is left out: an object and its occluder both meet the table there.
+    """
+    x0, y0, x1, y1 = (int(b) for b in box)
+    return _beyond(np.ascontiguousarray(depth, np.float32), np.ascontiguousarray(z, np.float64),
+                   np.ascontiguousarray(rows, np.int64), np.ascontiguousarray(cols, np.int64), x0, y0, x1, y1,
+                   max(int(step), 1), float(focal), float(min_jump), float(slant))
+
+
+@njit(cache=True)
+def _beyond(depth, z, rows, cols, x0, y0, x1, y1, step, focal, min_jump, slant):
+    H, W = depth.shape
+    out = np.zeros(len(z), np.bool_)
+    for p in range(len(z)):
+        r, c = rows[p], cols[p]
+        for side in range(3):                                                   # left, right, top
+            if side == 0 and c - x0 < step and x0 >= 2:
+                rr, cc = r, x0 - 2
+            elif side == 1 and x1 - 1 - c < step and x1 + 1 < W:
+                rr, cc = r, x1 + 1
+            elif side == 2 and r - y0 < step and y0 >= 2:
+                rr, cc = y0 - 2, c
+            else:
+                continue
+            d = depth[rr, cc]
+            if d <= 0.0:
+                continue
+            gap = abs(rr - r) + abs(cc - c)                                     # pixels
+            zm = 0.5 * (d + z[p])
+            if abs(d - z[p]) < max(min_jump * max(1.0, zm * zm), slant * gap * zm / focal):
+                out[p] = True
+    return out
+
+
+@njit(cache=True)
+def _cut_labels(labels, n_labels, rows, cols, box, step, beyond):
+    """[n_labels] bool: the surfaces or clusters that run on past the box (``CUT_SHARE`` of their points on the left,
+    right and top sides continue outside, at least 3 of them)."""
+    x0, y0, x1 = box[0], box[1], box[2]
+    edge, cont = np.zeros(n_labels), np.zeros(n_labels)
+    for p in range(len(labels)):
+        if cols[p] - x0 < step or x1 - 1 - cols[p] < step or rows[p] - y0 < step:
+            edge[labels[p]] += 1.0
+            cont[labels[p]] += beyond[p]
+    return (cont >= 3.0) & (cont >= CUT_SHARE * edge)
+
+
 def box_object_cluster(z: np.ndarray, rows: np.ndarray, cols: np.ndarray, box, min_fraction: float = 0.1,
                        border: float = 0.08, labels: np.ndarray | None = None, cut: tuple | None = None,
-                       points: np.ndarray | None = None, focal: float | None = None) -> tuple:
+                       points: np.ndarray | None = None, focal: float | None = None,
+                       beyond: np.ndarray | None = None, step: int = 1) -> tuple:
     """The object a box prompt is drawn around, chosen by evidence instead of nearness.
 
     Convention: ``z`` [P] metres, ``rows``, ``cols`` [P] frame pixels of the box's points; ``box`` (x0, y0, x1, y1)
@@ -146,7 +206,9 @@ def box_object_cluster(z: np.ndarray, rows: np.ndarray, cols: np.ndarray, box, m
     border band (the outer ``border`` of each side), as background surrounds the object along the border. Surfaces:
     fit = the share of the box's width × height its pixels span (the box spans its object, not what stands in front
     of it), × 0.3 when it still borders from in front a large surface that does not reach all four sides of the box
-    (it hides another object: an occluder; background reaches every side).
+    (it hides another object: an occluder; background reaches every side). With ``beyond`` [P] bool
+    (``continues_beyond_box``; ``step`` the lattice pitch), a candidate whose seed surface or cluster runs on past the
+    box's sides scores × ``CUT_PENALTY``: the box ends at its object.
     Returns ([P] bool, info {"clusters", "front_points", "occluded_fraction": front points / (those + the object's)}):
     in front = the depth clusters nearer than the chosen one, or the surfaces bordering the grown object from in front.
     """
@@ -156,15 +218,17 @@ def box_object_cluster(z: np.ndarray, rows: np.ndarray, cols: np.ndarray, box, m
     z = np.ascontiguousarray(z, np.float64)
     rows, cols = np.ascontiguousarray(rows, np.int64), np.ascontiguousarray(cols, np.int64)
     bounds = np.array([float(b) for b in box])                                  # [4] x0, y0, x1, y1
+    beyond = np.zeros(P, np.bool_) if beyond is None else np.ascontiguousarray(beyond, np.bool_)   # [P]
     if labels is not None and cut is not None and points is not None and focal:
         keep, n_big, front = _choose_surface(z, rows, cols, bounds, np.ascontiguousarray(labels, np.int64),
                                              np.ascontiguousarray(cut[0], np.int64),
                                              np.ascontiguousarray(cut[1], np.int64),
                                              np.ascontiguousarray(points, np.float64), float(focal),
-                                             float(min_fraction), float(border))
+                                             float(min_fraction), float(border), beyond, int(step))
     else:
         labels = depth_clusters(z) if labels is None else np.ascontiguousarray(labels, np.int64)
-        keep, n_big, front = _choose_cluster(rows, cols, bounds, labels, float(min_fraction), float(border))
+        keep, n_big, front = _choose_cluster(rows, cols, bounds, labels, float(min_fraction), float(border), beyond,
+                                             int(step))
     return keep, {"clusters": int(n_big), "front_points": int(front),
                   "occluded_fraction": occluded_fraction(front, keep)}
 
@@ -217,10 +281,11 @@ def _centre_offset2(members, rows, cols, cx, cy, hw, hh):
 
 
 @njit(cache=True)
-def _choose_cluster(rows, cols, box, labels, min_fraction, border):
+def _choose_cluster(rows, cols, box, labels, min_fraction, border, beyond, step):
     """Depth-cluster candidates: (keep [P] bool, number of candidates, points in nearer clusters)."""
     P = len(labels)
     counts, big = _big_labels(labels, min_fraction)
+    cut = _cut_labels(labels, len(counts), rows, cols, box, step, beyond)       # [C] runs on past the box
     cx, cy, hw, hh = _box_frame(box)
     sides = _sides(rows, cols, box, border, hw, hh)
     band = sides[0] | sides[1] | sides[2] | sides[3]                           # [P] in the border band
@@ -229,7 +294,7 @@ def _choose_cluster(rows, cols, box, labels, min_fraction, border):
     for k in range(len(big)):
         members = labels == big[k]
         n, offset2 = _centre_offset2(members, rows, cols, cx, cy, hw, hh)
-        fit = 1.0 - (band & members).sum() / n_band
+        fit = (1.0 - (band & members).sum() / n_band) * (CUT_PENALTY if cut[big[k]] else 1.0)
         score = n / P * fit * np.exp(-2.0 * offset2)
         if score > best_score:
             best, best_score = k, score
@@ -299,11 +364,12 @@ def _grow(seed, labels, n_labels, z, cut_i, cut_j, points, max_radius):
 
 
 @njit(cache=True)
-def _choose_surface(z, rows, cols, box, labels, cut_i, cut_j, points, focal, min_fraction, border):
+def _choose_surface(z, rows, cols, box, labels, cut_i, cut_j, points, focal, min_fraction, border, beyond, step):
     """Grown-surface candidates: (keep [P] bool, number of candidates, points of the surfaces bordering it in front)."""
     P = len(z)
     counts, big = _big_labels(labels, min_fraction)
     n_labels = len(counts)
+    runs_on = _cut_labels(labels, n_labels, rows, cols, box, step, beyond)     # [n_labels] runs on past the box
     cx, cy, hw, hh = _box_frame(box)
     sides = _sides(rows, cols, box, border, hw, hh)
     enclosing = np.ones(n_labels, np.bool_)                                     # reaches every side of the box
@@ -331,7 +397,7 @@ def _choose_surface(z, rows, cols, box, labels, cut_i, cut_j, points, focal, min
         for other in range(n_labels):
             if jumps[other] > 0 and counts[other] >= min_fraction * P and not enclosing[other]:
                 hides = True
-        fit = min(span, 1.0) * (0.3 if hides else 1.0)
+        fit = min(span, 1.0) * (0.3 if hides else 1.0) * (CUT_PENALTY if runs_on[seg] else 1.0)
         score = n / P * fit * np.exp(-2.0 * offset2)
         if score > best_score:
             best_score, best_keep, best_jumps = score, keep, jumps
