@@ -157,6 +157,25 @@ def test_logistic_fit_auroc_and_reliability():
         fit_logistic(X, np.ones(2000))
 
 
+def test_check_scores_the_stored_confidence_and_the_handle_calls(tmp_path, capsys):
+    from equipose.train.evaluation.confidence import main
+    row = {"right": True, "rot_err": 2.0, "ambiguous": False, "margin": 0.9, "confidence": 0.9,
+           "handle_truth_px": 50, "handle_visible": True}
+    rows = [row, {**row, "right": False, "rot_err": 120.0, "confidence": 0.8, "handle_truth_px": 0},   # wrong, sure
+            {**row, "right": False, "rot_err": 90.0, "confidence": 0.1, "handle_truth_px": 0, "handle_visible": False},
+            {**row, "confidence": 0.7, "handle_truth_px": 10, "handle_visible": False}]
+    path = tmp_path / "rows.json"
+    path.write_text(json.dumps({"rows": rows}))
+    out = tmp_path / "check.json"
+    assert main(["--model", "mug.onnx", "--rows", str(path), "--check", "--json", str(out)]) == 0
+    summary = json.loads(out.read_text())["summary"]
+    assert summary["confident_wrong"] == 1 and summary["auroc"] == pytest.approx(0.75)
+    h = summary["handle"]
+    assert h["visible"] == 2 and h["precision_1px"] == 0.5 and h["precision_30px"] == 0.5
+    assert h["recall_1px"] == 0.5 and (h["hidden"], h["hidden_called_visible"]) == (2, 1)
+    assert "confident-wrong 1" in capsys.readouterr().out
+
+
 def test_every_shipped_model_carries_a_calibrated_confidence():
     from equipose.models import list_models
     for path in list_models():

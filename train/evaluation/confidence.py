@@ -315,6 +315,35 @@ def plot_reliability(summary: dict, path, title: str) -> None:
     plt.close(fig)
 
 
+def handle_summary(rows: list) -> dict:
+    """Mug rows (with ``handle_truth_px``): how often ``handle_visible`` is said, its precision against the render's
+    visible handle pixels (≥ 1 and ≥ 30), its recall (≥ 1 pixel), and the results whose handle was hidden (0 pixels)
+    but called visible."""
+    vis = [r for r in rows if r["handle_visible"]]
+    shown = [r for r in rows if r["handle_truth_px"] >= 1]
+    hidden = [r for r in rows if r["handle_truth_px"] == 0]
+    return {"visible": len(vis),
+            "precision_1px": sum(r["handle_truth_px"] >= 1 for r in vis) / max(len(vis), 1),
+            "precision_30px": sum(r["handle_truth_px"] >= 30 for r in vis) / max(len(vis), 1),
+            "recall_1px": sum(r["handle_visible"] for r in shown) / max(len(shown), 1),
+            "hidden": len(hidden), "hidden_called_visible": sum(r["handle_visible"] for r in hidden)}
+
+
+def _check(rows: list, model: str, json_path: str | None) -> int:
+    """``--check``: the stored confidence of each row, scored on all of them (no fit)."""
+    summary = summarize(rows, np.array([r["confidence"] for r in rows]))
+    print(f"{pathlib.Path(model).name}: {len(rows)} results, right {summary['right_rate']:.3f}; stored confidence: "
+          f"AUROC {summary['auroc']:.3f}, ECE {summary['ece']:.3f}, confident-wrong {summary['confident_wrong']}")
+    if rows and "handle_truth_px" in rows[0]:
+        summary["handle"] = h = handle_summary(rows)
+        print(f"handle_visible on {h['visible']} results: precision {h['precision_1px']:.4f} (≥ 1 handle pixel), "
+              f"{h['precision_30px']:.4f} (≥ 30); recall {h['recall_1px']:.3f}; hidden handles called visible "
+              f"{h['hidden_called_visible']} of {h['hidden']}")
+    if json_path:
+        pathlib.Path(json_path).write_text(json.dumps({"summary": summary, "rows": rows}, indent=1))
+    return 0
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--model", required=True)
@@ -327,6 +356,8 @@ def main(argv=None) -> int:
     ap.add_argument("--json", help="write the summary and every row here")
     ap.add_argument("--plot", help="write the held-out reliability diagram (PNG) here")
     ap.add_argument("--without", default="", help="comma-separated evidence features to leave out of the fit")
+    ap.add_argument("--check", action="store_true",
+                    help="score the confidence the model file stores on these results instead of fitting a new one")
     a = ap.parse_args(argv)
     from equipose import PoseEstimator
     if a.rows:
@@ -336,6 +367,8 @@ def main(argv=None) -> int:
         est = PoseEstimator(a.model)
         rows = collect(est, a.views, a.seed, a.data_root) if est.category in TABLETOP else \
             collect_modelnet(est, a.data_root, limit=a.limit)
+    if a.check:
+        return _check(rows, a.model, a.json)
     without = {f for f in a.without.split(",") if f}
     if without - set(CONFIDENCE_FEATURES):
         raise ConfigError(f"--without: unknown feature(s) {sorted(without - set(CONFIDENCE_FEATURES))}; features: "
