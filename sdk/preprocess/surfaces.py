@@ -153,6 +153,7 @@ def continues_beyond_box(depth: np.ndarray, z: np.ndarray, rows: np.ndarray, col
 
 @njit(cache=True)
 def _beyond(depth, z, rows, cols, x0, y0, x1, y1, step, focal, min_jump, slant):
+    """``continues_beyond_box`` on typed arrays: [P] bool."""
     H, W = depth.shape
     out = np.zeros(len(z), np.bool_)
     for p in range(len(z)):
