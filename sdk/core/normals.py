@@ -29,10 +29,15 @@ def _normals(P, k, out) -> None:
     N = len(P)
     near_d, near_i = np.empty(k), np.empty(k, np.int64)                     # the k nearest so far, ascending
     C = np.empty((3, 3))
+    X, Y, Z = P[:, 0].copy(), P[:, 1].copy(), P[:, 2].copy()                # [N] each: contiguous, vectorised rows
+    row = np.empty(N)                                                         # [N] squared distances from point i
     for i in range(N):
+        xi, yi, zi = X[i], Y[i], Z[i]
+        for j in range(N):
+            row[j] = (X[j] - xi) ** 2 + (Y[j] - yi) ** 2 + (Z[j] - zi) ** 2
         m = 0                                                                 # neighbours held
         for j in range(N):
-            d = (P[j, 0] - P[i, 0]) ** 2 + (P[j, 1] - P[i, 1]) ** 2 + (P[j, 2] - P[i, 2]) ** 2
+            d = row[j]
             if m == k and d >= near_d[k - 1]:
                 continue
             pos = m if m < k else k - 1                                       # insertion into the sorted list
