@@ -1,6 +1,7 @@
 """Stage ``handle`` (metadata ``handle``): the azimuth about a mug's axis from its observed handle
 (``equipose.runtime.handle.resolve_handle``), which makes the pose full 6D (symmetry "none"). Result extras
-``handle_visible`` (a handle was found and enough points lie in the handle zone of the canonical shape),
+``handle_visible`` (a handle was found, enough points lie in the handle zone of the canonical shape, within a
+handle's reach of the body, and at least ``HANDLE_MIN_CLUSTERED`` of them form a surface patch),
 ``handle_points``, ``handle_direction_object``, ``handle_fit`` ((share, mass) of the fit that placed the handle, or
 None: ``equipose.core.handles.HandleFit``); a handle not seen sets ``ambiguous``.
 
