@@ -86,6 +86,13 @@ def _root(parent, a):
 
 
 @njit(cache=True)
+def _tolerance(za, zb, spacing, focal, min_jump, slant):
+    """Largest depth step (m) between two points of one surface ``spacing`` pixels apart (``surface_segments``)."""
+    zm = 0.5 * (za + zb)
+    return max(min_jump * max(1.0, zm * zm), slant * spacing * zm / focal)
+
+
+@njit(cache=True)
 def _surface_labels(z, gi, gj, step, focal, min_jump, slant):
     P = len(z)
     gh, gw = gi.max() + 1, gj.max() + 1
@@ -102,9 +109,7 @@ def _surface_labels(z, gi, gj, step, focal, min_jump, slant):
                 b = grid[r + 1, c] if vertical else grid[r, c + 1]
                 if a < 0 or b < 0:
                     continue
-                zm = 0.5 * (z[a] + z[b])
-                tol = max(min_jump * max(1.0, zm * zm), slant * step * zm / focal)
-                if abs(z[a] - z[b]) < tol:
+                if abs(z[a] - z[b]) < _tolerance(z[a], z[b], step, focal, min_jump, slant):
                     ra, rb = _root(parent, a), _root(parent, b)
                     if ra != rb:
                         parent[max(ra, rb)] = min(ra, rb)
@@ -171,8 +176,7 @@ def _beyond(depth, z, rows, cols, x0, y0, x1, y1, step, focal, min_jump, slant):
             if d <= 0.0:
                 continue
             gap = abs(rr - r) + abs(cc - c)                                     # pixels
-            zm = 0.5 * (d + z[p])
-            if abs(d - z[p]) < max(min_jump * max(1.0, zm * zm), slant * gap * zm / focal):
+            if abs(d - z[p]) < _tolerance(d, z[p], gap, focal, min_jump, slant):
                 out[p] = True
     return out
 
