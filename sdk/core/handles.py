@@ -152,10 +152,9 @@ def align_handle(points: np.ndarray, fit: HandleFit | None = None) -> np.ndarray
     return np.asarray(points, np.float64) @ turn_about_z(-fit.azimuth).T
 
 
-def handle_zone_count(observed_obj: np.ndarray, canonical_obj: np.ndarray, direction,
-                      max_ratio: float | None = None) -> int:
+def handle_zone_count(observed_obj: np.ndarray, canonical_obj: np.ndarray, direction) -> int:
     """How many observed points fall where the handle is (``handle_zone_mask``'s count)."""
-    return int(np.count_nonzero(handle_zone_mask(observed_obj, canonical_obj, direction, max_ratio)))
+    return int(np.count_nonzero(handle_zone_mask(observed_obj, canonical_obj, direction)))
 
 
 def handle_zone_mask(observed_obj: np.ndarray, canonical_obj: np.ndarray, direction,
