@@ -1,7 +1,7 @@
 """Real RealSense tabletop frames without pose labels: does a standing cup, mug, bowl or can come out upright?
 
 Usage: python tools/bench/real_upright.py [--boxes tools/bench/data/uoc_boxes.toml] [--data DIR] [--profile default]
-    [--json FILE] [--overlays DIR]
+    [--models-from DIR] [--json FILE] [--overlays DIR]
 Every object listed in the boxes file (hand-drawn boxes on ``realsense_tabletop_uoc``, nine 640 × 480 frames of
 mugs, cups, bowls and cans among other things, some with something in front of them) stands upright, so its true
 symmetry axis is the frame's support-plane normal (``equipose.preprocess.find_support_plane``, the camera side
@@ -70,6 +70,8 @@ def main(argv=None) -> int:
     ap.add_argument("--boxes", default=str(HERE / "data" / "uoc_boxes.toml"))
     ap.add_argument("--data", default=str(root / "realsense_tabletop_uoc"))
     ap.add_argument("--profile", default="default")
+    ap.add_argument("--models-from", help="a folder of model files to use instead of the shipped ones of the same "
+                                          "name (<name>.onnx), e.g. candidates before shipping")
     ap.add_argument("--json", help="write the per-object rows here")
     ap.add_argument("--overlays", help="a folder for one annotated JPEG per frame (box prompt, no up prior)")
     a = ap.parse_args(argv)
@@ -77,7 +79,10 @@ def main(argv=None) -> int:
     cam = json.loads((data / "camera_params.json").read_text())
     K = np.array([[cam["fx"], 0.0, cam["x_offset"]], [0.0, cam["fy"], cam["y_offset"]], [0.0, 0.0, 1.0]])
     objects = tomllib.loads(pathlib.Path(a.boxes).read_text())["object"]
-    estimators = {m: PoseEstimator(m, profile=a.profile) for m in sorted({o["model"] for o in objects})}
+    def model_file(name):
+        own = pathlib.Path(a.models_from or ".") / f"{name}.onnx"
+        return str(own) if a.models_from and own.is_file() else name
+    estimators = {m: PoseEstimator(model_file(m), profile=a.profile) for m in sorted({o["model"] for o in objects})}
     rows, drawn = [], {}
     for frame in sorted({o["frame"] for o in objects}):
         depth = cv2.imread(str(data / f"{frame:06d}-depth.png"), cv2.IMREAD_UNCHANGED)
