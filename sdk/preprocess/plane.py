@@ -14,7 +14,10 @@ from numba import njit
 from equipose.core.errors import TooFewPointsError
 from equipose.core.eigen import top_eigenvector
 
-__all__ = ["fit_plane_ransac", "find_support_plane"]
+__all__ = ["fit_plane_ransac", "find_support_plane", "local_support_plane", "LOCAL_LIFT_M", "LOCAL_BAND_M"]
+
+LOCAL_LIFT_M = 0.03     # a region whose surrounding surface lies this far above the frame's plane stands on it
+LOCAL_BAND_M = 0.01     # ... found as the most populated slice this high of the region's lower half
 
 
 @njit(cache=True)
@@ -157,6 +160,46 @@ def find_support_plane(depth_m: np.ndarray, K: np.ndarray, *, threshold: float =
         return None
     n, off, inl = fit_plane_ransac(pts, threshold=threshold, seed=seed)
     return (n, off) if inl.mean() >= min_fraction else None
+
+
+def local_support_plane(depth_m: np.ndarray, K: np.ndarray, plane, bounds, *, margin: float = 0.25,
+                        max_pixels: int = 1024, lift: float = LOCAL_LIFT_M, band: float = LOCAL_BAND_M):
+    """The level an object in ``bounds`` stands on: the frame's plane, or a parallel one under the object.
+
+    Convention: ``depth_m`` [H, W] metres (0 = invalid), ``K`` [3, 3]; ``plane`` (unit normal [3], offset) as
+    ``find_support_plane`` returns it (a camera-frame point x lies ``n · x + offset`` m above it); ``bounds`` (x0, y0,
+    x1, y1) pixels, x1 and y1 exclusive, grown by ``margin`` of its size on each side (what surrounds the object).
+    The frame's dominant plane is the floor when the floor fills more of the view than the table: the table's
+    objects then stand half a metre above it. The level is the most populated ``band``-high slice of the lower half
+    of the region's pixel heights (a flat top around the object fills one slice; the object's sides spread over
+    many). Where it lies more than ``lift`` above the plane, the plane moves up to it, parallel. Returns (normal,
+    offset); the plane as given where its level is already under the region.
+    """
+    if plane is None:
+        return None
+    H, W = depth_m.shape
+    x0, y0, x1, y1 = (int(b) for b in bounds)
+    gx, gy = int(round(margin * (x1 - x0))), int(round(margin * (y1 - y0)))
+    x0, y0, x1, y1 = max(x0 - gx, 0), max(y0 - gy, 0), min(x1 + gx, W), min(y1 + gy, H)
+    if x1 <= x0 or y1 <= y0:
+        return plane
+    step = max(1, int(math.ceil(math.sqrt((x1 - x0) * (y1 - y0) / max_pixels))))
+    win = np.asarray(depth_m[y0:y1:step, x0:x1:step], np.float64)               # [h, w] m
+    rows, cols = np.nonzero(win > 0)
+    if len(rows) < 20:
+        return plane
+    K = np.asarray(K, np.float64)
+    z = win[rows, cols]                                                         # [P]
+    u, v = cols * step + x0, rows * step + y0                                   # frame pixels
+    n, off = np.asarray(plane[0], np.float64), float(plane[1])
+    h = ((u - K[0, 2]) * z / K[0, 0]) * n[0] + ((v - K[1, 2]) * z / K[1, 1]) * n[1] + z * n[2] + off   # [P] m
+    low = h[h <= np.median(h)]                                                  # [P'] the lower half
+    edges = np.arange(low.min(), low.max() + band, band)                        # bins of ``band`` m
+    if len(edges) < 2:
+        return plane
+    k = int(np.argmax(np.histogram(low, edges)[0]))                             # the most populated level
+    level = float(np.median(low[(low >= edges[k]) & (low <= edges[k + 1])]))
+    return plane if level <= lift else (n, off - level)
 
 
 @njit(cache=True)

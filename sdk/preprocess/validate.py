@@ -25,7 +25,7 @@ from equipose.core.order_statistics import median
 from equipose.core.intrinsics import CENTRE_TOLERANCE, FOCAL_RANGE, check_intrinsics  # noqa: F401
 
 __all__ = ["PLAUSIBLE_DEPTH_M", "FOCAL_RANGE", "CENTRE_TOLERANCE", "depth_to_metres", "check_intrinsics", "check_box", "check_mask", "check_points",
-           "check_regions"]
+           "check_regions", "region_bounds"]
 
 PLAUSIBLE_DEPTH_M = (0.05, 30.0)  # median valid depth must fall in here for the declared unit to be believed
 
@@ -135,6 +135,15 @@ def check_box(box, shape) -> tuple:
         raise RegionError(f"box (x={x:g}, y={y:g}, w={w:g}, h={h:g}) lies outside the {W}×{H} image; boxes are (x, y, w, h) "
                           "in pixels of the depth frame (rescale boxes from another image size first)")
     return cx0, cy0, cx1, cy1
+
+
+def region_bounds(region: dict, shape) -> tuple:
+    """(x0, y0, x1, y1) pixels, x1 and y1 exclusive, of an object's region {"box", "mask"} in a frame of ``shape``
+    (H, W): the box when given, else the mask's bounding box. Raises ``RegionError`` (``check_box``, ``check_mask``)."""
+    if region.get("box") is not None:
+        return check_box(region["box"], shape)
+    rows, cols = np.nonzero(check_mask(region["mask"], shape))
+    return int(cols.min()), int(rows.min()), int(cols.max()) + 1, int(rows.max()) + 1
 
 
 def check_mask(mask, shape) -> np.ndarray:

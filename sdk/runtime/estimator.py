@@ -323,18 +323,22 @@ class PoseEstimator:
         if wants_plane is None:
             wants_plane = any(r.get("box") is not None and r.get("mask") is None for r in regions)
         plane = opts.get("support_plane")
+        given = plane is not None
         if plane is None:          # one plane fit per frame (about 0.1 ms): the crop, the up prior, the confidence
             plane = _crop.find_support_plane(depth_m, Kf)
-            if wants_plane:
-                crop_options = {**crop_options, **({"remove_support_plane": False} if plane is None else
-                                                   {"support_plane": plane})}
+            if wants_plane and plane is None:
+                crop_options = {**crop_options, "remove_support_plane": False}
         shared_ms = _ms(t0) / len(regions)
         preps, crops, fps_ms, crop_ms, counts, slots, out, prefs = [], [], [], [], [], [], [None] * len(regions), []
+        levels = []                                                             # each kept object's support plane
         for i, reg in enumerate(regions):
             try:
                 t1 = time.perf_counter()
+                level = plane if given else _crop.local_support_plane(depth_m, Kf, plane,
+                                                                      _crop.region_bounds(reg, depth_m.shape))
+                own = {"support_plane": level} if wants_plane and level is not None and not given else {}
                 c = self.crop(depth_m, Kf, box=reg.get("box"), mask=reg.get("mask"), depth_unit="m",
-                              prevalidated=True, **crop_options)
+                              prevalidated=True, **crop_options, **own)
                 t2 = time.perf_counter()
                 prep = _crop.prepare_points(c.points, self.num_points, self.scale)
                 t3 = time.perf_counter()
@@ -345,13 +349,14 @@ class PoseEstimator:
                 continue
             preps.append(prep)
             crops.append(c)
+            levels.append(level)
             counts.append(len(c.points))
             slots.append(i)
             crop_ms.append(shared_ms + (t2 - t1) * 1e3)
             fps_ms.append((t3 - t2) * 1e3)
             prefs.append(None if prefer is None else prefer[i])
         if preps:
-            supports = [resolve_support_plane(plane, c.points) for c in crops]  # None where no plane is under it
+            supports = [resolve_support_plane(lv, c.points) for lv, c in zip(levels, crops)]  # None: no plane under it
             support_ups = [None if s is None else s[0] for s in supports]
             results = self._infer(preps, crops, fps_ms, crop_ms, counts, prefer=prefs, prefer_margin=prefer_margin,
                                   ups=support_ups if isinstance(up, str) else [up] * len(preps),

@@ -302,3 +302,36 @@ def test_box_prompt_drops_an_occluder_that_runs_past_the_box(data_root):
         res = crop_points(view.depth, view.K, box=view.box)
         assert view.mask[tuple(res.pixels.T)].mean() > 0.95, v
         assert res.diagnostics["occluded_fraction"] > 0.05, v                    # and it is reported in front
+
+
+def _floor_and_table(table_depth=1.5, floor_depth=2.0):
+    """A top-down 640 × 480 view: floor at ``floor_depth`` m (60 % of the frame), a table top 0.5 m above it, a
+    10 cm high block standing on the table. Camera-frame up is −z."""
+    K = np.array([[600.0, 0, 320.0], [0, 600.0, 240.0], [0, 0, 1.0]])
+    d = np.full((480, 640), floor_depth, np.float32)
+    d[100:380, 100:540] = table_depth
+    d[300:340, 200:240] = table_depth - 0.1
+    return d, K
+
+
+def test_local_support_plane_moves_up_from_the_floor_to_the_table_under_the_object():
+    from equipose.preprocess import find_support_plane, local_support_plane
+    d, K = _floor_and_table()
+    n, off = find_support_plane(d, K)
+    assert np.allclose(n, [0, 0, -1], atol=1e-3) and off == pytest.approx(2.0, abs=1e-3)   # the floor dominates
+    n2, off2 = local_support_plane(d, K, (n, off), (195, 295, 245, 345))                   # the block on the table
+    assert np.allclose(n2, n) and off2 == pytest.approx(1.5, abs=0.005)
+    assert local_support_plane(d, K, (n, off), (20, 400, 80, 470)) == (n, off)             # a region on the floor
+    assert local_support_plane(d, K, None, (195, 295, 245, 345)) is None
+
+
+def test_estimator_reports_the_table_under_a_box_when_the_floor_dominates():
+    from equipose import PoseEstimator
+    d, K = _floor_and_table(table_depth=0.8, floor_depth=1.3)
+    rng = np.random.default_rng(0)
+    rows, cols = np.mgrid[290:350, 280:330]
+    d[rows, cols] = 0.8 - 0.07 + 0.01 * np.cos((cols - 305) / 25.0) + rng.normal(0, 0.0005, rows.shape)   # a can-sized bump
+    est = PoseEstimator("can-tabletop")
+    r = est.predict((d * 1000).astype(np.uint16), K, box=(270, 280, 70, 80), up="plane")
+    assert r.up is not None and r.crop["plane_height"] > 0                     # the crop removed the table, not the floor
+    assert r.crop["above_plane"] < r.crop["gated"]
