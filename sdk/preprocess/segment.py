@@ -15,6 +15,29 @@ from equipose.preprocess.validate import check_intrinsics, depth_to_metres
 __all__ = ["auto_masks"]
 
 
+TABLE_SHARE = 0.3           # a parallel level above the dominant plane with this share of its points is the table
+TABLE_HEIGHT_M = (0.2, 1.5)  # ... at a height in this range (m) above it
+
+
+def table_level(heights: np.ndarray, plane_points: int, threshold: float) -> float:
+    """Height (m) of a table top above the dominant plane, or 0.0 where there is none.
+
+    Convention: ``heights`` [S] metres of the fit's sample points above the dominant plane (``plane_points`` of them
+    on it, within ``threshold``). The most populated slice 2 × ``threshold`` high between ``TABLE_HEIGHT_M`` counts
+    when it holds at least ``TABLE_SHARE`` × ``plane_points`` points: a floor with a table on it, seen from above.
+    """
+    lo, hi = TABLE_HEIGHT_M
+    h = heights[(heights > lo) & (heights < hi)]
+    if len(h) < TABLE_SHARE * plane_points or not len(h):
+        return 0.0
+    edges = np.arange(lo, hi + 2 * threshold, 2 * threshold)
+    counts = np.histogram(h, edges)[0]
+    k = int(np.argmax(counts))
+    if counts[k] < TABLE_SHARE * plane_points:
+        return 0.0
+    return float(np.median(h[(h >= edges[k]) & (h <= edges[k + 1])]))
+
+
 def auto_masks(depth, K, *, depth_unit="mm", image_size=None, min_depth: float = 0.1, max_depth: float = 3.0,
                plane_threshold: float = 0.012, min_height: float = 0.015, max_height: float = 0.5,
                cluster_radius: float = 0.02, min_cluster_points: int = 500, max_objects: int = 10,
@@ -29,7 +52,9 @@ def auto_masks(depth, K, *, depth_unit="mm", image_size=None, min_depth: float =
     full-resolution pixel above the plane then joins the cluster of its nearest grid point (within
     ``cluster_radius``). With ``table_hull`` only points whose projection onto the plane falls inside the convex hull
     of the table inliers are kept (PCL's polygonal-prism idea: background beyond the table is ignored). Clusters
-    touching the image border or smaller than ``min_cluster_points`` full-resolution pixels are dropped.
+    touching the image border or smaller than ``min_cluster_points`` full-resolution pixels are dropped. Where the
+    dominant plane is the floor and a table top parallel to it holds at least ``TABLE_SHARE`` as many points
+    (``table_level``), the table is the plane.
     """
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
@@ -48,6 +73,10 @@ def auto_masks(depth, K, *, depth_unit="mm", image_size=None, min_depth: float =
     step = max(1, len(z) // 20000)
     sub = np.stack([x[::step], y[::step], z[::step]], 1).astype(np.float64)     # [≤20k, 3] for the plane fit
     n, off, inl = fit_plane_ransac(sub, threshold=plane_threshold, seed=seed)
+    level = table_level(sub @ n + off, int(inl.sum()), plane_threshold)          # a table above the floor
+    if level:
+        off -= level
+        inl = np.abs(sub @ n + off) < plane_threshold
     h = x * np.float32(n[0]) + y * np.float32(n[1]) + z * np.float32(n[2]) + np.float32(off)  # [P] height
     above = (h > min_height) & (h < max_height)                                 # [P]
     if table_hull and inl.sum() >= 3:

@@ -335,3 +335,13 @@ def test_estimator_reports_the_table_under_a_box_when_the_floor_dominates():
     r = est.predict((d * 1000).astype(np.uint16), K, box=(270, 280, 70, 80), up="plane")
     assert r.up is not None and r.crop["plane_height"] > 0                     # the crop removed the table, not the floor
     assert r.crop["above_plane"] < r.crop["gated"]
+
+
+def test_auto_masks_find_a_table_top_object_when_the_floor_dominates():
+    from equipose.preprocess.segment import table_level
+    d, K = _floor_and_table(table_depth=1.5, floor_depth=2.2)                 # table top 0.7 m above the floor
+    masks = auto_masks(d, K, depth_unit="m")
+    assert len(masks) == 1 and masks[0][300:340, 200:240].mean() > 0.9 and masks[0].sum() < 2000
+    assert table_level(np.zeros(100), 100, 0.012) == 0.0                        # a floor alone: no table
+    h = np.concatenate([np.zeros(600), np.full(300, 0.7), np.linspace(0.75, 0.9, 50)])
+    assert table_level(h, 600, 0.012) == pytest.approx(0.7)
