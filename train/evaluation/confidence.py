@@ -151,8 +151,8 @@ def collect_modelnet(model, data_root=None, cache_dir=None, limit: int | None = 
 
 
 MONOTONE = ("margin", "flip_margin")      # a larger margin never lowers the confidence
-AGAINST = ("plane_tilt", "plane_float", "plane_sink")   # a pose tilted on, floating above or sunk into its support
-                                                        # plane is never more likely right
+AGAINST = ("plane_tilt", "plane_float", "plane_sink", "plane_rest")   # a pose tilted on, floating above, sunk into
+                                                        # or leaning on its support plane is never more likely right
 
 
 def _columns(features, names) -> list:

@@ -19,7 +19,9 @@ of the object was seen —
   ``predict_points``). The plane is evidence here, not a prior: the pose is not turned to it;
 - ``plane_float``, ``plane_sink``: how far the posed shape's lowest point lies above (floats) or below (sinks into)
   that support plane, in shape RMS radii, clipped to 0..``CONTACT_CLIP`` (0 without a plane): an object standing on
-  a table touches it.
+  a table touches it;
+- ``plane_rest``: |sin 2θ| for the same angle θ: 0 where the pose rests on the plane upright, lying on its side or
+  upside down, 1 halfway between (45°, 135°), where nothing stands by itself (0 without a plane).
 
 With ``confidence_calibration`` in the model file, ``confidence`` = σ(bias + Σ weight·feature): the estimated chance
 that the rotation is within 10° of the truth (modulo the symmetry) and the centre within 2 cm, fitted on rendered
@@ -63,6 +65,7 @@ def evidence(state: ObjectState) -> dict:
     fit = state.extras.get("handle_fit") if visible else None                  # (share, mass) of the handle fit
     flip = state.extras.get("flip_margin", getattr(state.selection, "flip_margin", float("nan")))
     gap = _plane_gap(state, posed, rms)                                         # RMS radii, + above the plane
+    cos_up = None if state.support_up is None else float(np.clip(state.rotation[:, 2] @ state.support_up, -1, 1))
     return {
         "margin": float(state.confidence),
         "flip_margin": float(np.clip(flip, 0.0, 1.0)) if np.isfinite(flip) else 1.0,
@@ -77,8 +80,8 @@ def evidence(state: ObjectState) -> dict:
         "handle_share": float(state.extras.get("handle_points", 0)) / max(len(x), 1),
         "handle_fit_share": fit[0] if fit else 0.0,
         "handle_fit_mass": fit[1] if fit else 0.0,
-        "plane_tilt": 0.0 if state.support_up is None else
-        float(np.clip(0.5 * (1.0 - float(state.rotation[:, 2] @ state.support_up)), 0.0, 1.0)),
+        "plane_tilt": 0.0 if cos_up is None else float(np.clip(0.5 * (1.0 - cos_up), 0.0, 1.0)),
+        "plane_rest": 0.0 if cos_up is None else float(abs(2.0 * cos_up * math.sqrt(max(0.0, 1.0 - cos_up ** 2)))),
         "plane_float": float(np.clip(gap, 0.0, CONTACT_CLIP)),
         "plane_sink": float(np.clip(-gap, 0.0, CONTACT_CLIP)),
     }
