@@ -17,7 +17,7 @@ from scipy.spatial import cKDTree
 
 from equipose.core.errors import ConfigError, DepthDtypeError, EmptyDepthError, RegionError, TooFewPointsError
 from equipose.core.order_statistics import median
-from equipose.preprocess.plane import find_support_plane
+from equipose.preprocess.plane import find_support_plane, plane_height_terms
 from equipose.preprocess.sampling import MIN_POINTS
 from equipose.preprocess.surfaces import (box_object_cluster, continues_beyond_box, nearest_depth_cluster,
                                          occluded_fraction, surface_segments)
@@ -138,15 +138,6 @@ def _grid_neighbour_distances(points, r, c) -> tuple:
     return total, count
 
 
-def _plane_heights(plane, K, x0, y0, x1, y1) -> tuple:
-    """The separable terms of the height above ``plane`` (normal [3], offset) of a window pixel (row, col) at depth z:
-    z · (ry[row] + cx[col]) + offset. Returns (ry [h] float64, cx [w] float64, offset float32)."""
-    n, off = plane
-    cx = (np.arange(x0, x1, dtype=np.float32) - K[0, 2]) / K[0, 0] * n[0]                 # [w]
-    ry = (np.arange(y0, y1, dtype=np.float32) - K[1, 2]) / K[1, 1] * n[1] + n[2]          # [h]
-    return ry, cx, np.float32(off)
-
-
 @njit(cache=True)
 def _window_mask(win, region, min_depth, max_depth) -> tuple:
     """One pass over the box window ``win`` [h, w] float32 metres (0 = invalid) within ``region`` [h, w] bool (None:
@@ -173,7 +164,7 @@ def _window_mask(win, region, min_depth, max_depth) -> tuple:
 @njit(cache=True)
 def _above_plane(win, valid, ry, cx, off, plane_height) -> tuple:
     """(above [h, w] bool: the ``valid`` window pixels higher than ``plane_height`` above the plane whose heights
-    ``_plane_heights`` separates (ry [h], cx [w], off), computed in float32; their count)."""
+    ``plane_height_terms`` separates (ry [h], cx [w], off), computed in float32; their count)."""
     h, w = win.shape
     above = np.zeros((h, w), np.bool_)
     n = 0
@@ -187,7 +178,7 @@ def _above_plane(win, valid, ry, cx, off, plane_height) -> tuple:
 
 @njit(cache=True)
 def _near_plane_heights(win, valid, ry, cx, off, limit) -> np.ndarray:
-    """[Q] float32 heights (m) of the ``valid`` window pixels within ``limit`` of the plane (``_plane_heights``'s
+    """[Q] float32 heights (m) of the ``valid`` window pixels within ``limit`` of the plane (``plane_height_terms``'s
     separable terms): the table around the object, where its depth noise shows."""
     h, w = win.shape
     out = np.empty(h * w, np.float32)
@@ -345,7 +336,7 @@ def crop_points(depth, K, *, box=None, mask=None, depth_unit="mm", image_size=No
     if remove_support_plane:
         plane = support_plane if support_plane is not None else find_support_plane(d, Kf)
         if plane is not None:
-            terms = _plane_heights(plane, Kf, x0, y0, x1, y1)                   # (ry [h], cx [w], offset)
+            terms = plane_height_terms(plane, Kf, x0, y0, x1, y1)              # (ry [h], cx [w], offset)
             if auto_height:
                 plane_height = auto_plane_height(_near_plane_heights(win, valid, *terms,
                                                                      np.float32(PLANE_HEIGHT_RANGE[1])))

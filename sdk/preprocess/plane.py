@@ -14,7 +14,8 @@ from numba import njit
 from equipose.core.errors import TooFewPointsError
 from equipose.core.eigen import top_eigenvector
 
-__all__ = ["fit_plane_ransac", "find_support_plane", "local_support_plane", "LOCAL_LIFT_M", "LOCAL_BAND_M"]
+__all__ = ["fit_plane_ransac", "find_support_plane", "plane_height_terms", "densest_level", "local_support_plane",
+           "LOCAL_LIFT_M", "LOCAL_BAND_M"]
 
 LOCAL_LIFT_M = 0.03     # a region whose surrounding surface lies this far above the frame's plane stands on it
 LOCAL_BAND_M = 0.01     # ... found as the most populated slice this high of the region's lower half
@@ -162,6 +163,27 @@ def find_support_plane(depth_m: np.ndarray, K: np.ndarray, *, threshold: float =
     return (n, off) if inl.mean() >= min_fraction else None
 
 
+def plane_height_terms(plane, K, x0, y0, x1, y1) -> tuple:
+    """The separable terms of the height above ``plane`` (normal [3], offset) of a frame pixel (row, col) at depth z
+    in the window x0 ≤ col < x1, y0 ≤ row < y1: z · (ry[row − y0] + cx[col − x0]) + offset.
+    Returns (ry [h] float64, cx [w] float64, offset float32)."""
+    n, off = plane
+    cx = (np.arange(x0, x1, dtype=np.float32) - K[0, 2]) / K[0, 0] * n[0]                 # [w]
+    ry = (np.arange(y0, y1, dtype=np.float32) - K[1, 2]) / K[1, 1] * n[1] + n[2]          # [h]
+    return ry, cx, np.float32(off)
+
+
+def densest_level(heights: np.ndarray, start: float, stop: float, width: float) -> tuple:
+    """The most populated slice ``width`` high of ``heights`` [P] m, slices from ``start`` up to and past ``stop``:
+    (median height of its points, their count), or (None, 0) when there is less than one slice."""
+    edges = np.arange(start, stop + width, width)
+    if len(edges) < 2:
+        return None, 0
+    counts = np.histogram(heights, edges)[0]
+    k = int(np.argmax(counts))
+    return float(np.median(heights[(heights >= edges[k]) & (heights <= edges[k + 1])])), int(counts[k])
+
+
 def local_support_plane(depth_m: np.ndarray, K: np.ndarray, plane, bounds, *, margin: float = 0.25,
                         max_pixels: int = 1024, lift: float = LOCAL_LIFT_M, band: float = LOCAL_BAND_M):
     """The level an object in ``bounds`` stands on: the frame's plane, or a parallel one under the object.
@@ -188,18 +210,12 @@ def local_support_plane(depth_m: np.ndarray, K: np.ndarray, plane, bounds, *, ma
     rows, cols = np.nonzero(win > 0)
     if len(rows) < 20:
         return plane
-    K = np.asarray(K, np.float64)
-    z = win[rows, cols]                                                         # [P]
-    u, v = cols * step + x0, rows * step + y0                                   # frame pixels
     n, off = np.asarray(plane[0], np.float64), float(plane[1])
-    h = ((u - K[0, 2]) * z / K[0, 0]) * n[0] + ((v - K[1, 2]) * z / K[1, 1]) * n[1] + z * n[2] + off   # [P] m
+    ry, cx, _ = plane_height_terms((n, off), np.asarray(K, np.float64), x0, y0, x1, y1)  # [h], [w] full window
+    h = win[rows, cols] * (ry[::step][rows] + cx[::step][cols]) + off           # [P] m above the plane
     low = h[h <= np.median(h)]                                                  # [P'] the lower half
-    edges = np.arange(low.min(), low.max() + band, band)                        # bins of ``band`` m
-    if len(edges) < 2:
-        return plane
-    k = int(np.argmax(np.histogram(low, edges)[0]))                             # the most populated level
-    level = float(np.median(low[(low >= edges[k]) & (low <= edges[k + 1])]))
-    return plane if level <= lift else (n, off - level)
+    level, _ = densest_level(low, low.min(), low.max(), band)                   # the most populated level
+    return plane if level is None or level <= lift else (n, off - level)
 
 
 @njit(cache=True)

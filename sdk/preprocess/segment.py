@@ -9,7 +9,7 @@ from scipy.spatial import cKDTree
 
 from equipose.core.errors import EmptyDepthError
 from equipose.core.geometry import cross
-from equipose.preprocess.plane import fit_plane_ransac
+from equipose.preprocess.plane import densest_level, fit_plane_ransac
 from equipose.preprocess.validate import check_intrinsics, depth_to_metres
 
 __all__ = ["auto_masks"]
@@ -30,12 +30,8 @@ def table_level(heights: np.ndarray, plane_points: int, threshold: float) -> flo
     h = heights[(heights > lo) & (heights < hi)]
     if len(h) < TABLE_SHARE * plane_points or not len(h):
         return 0.0
-    edges = np.arange(lo, hi + 2 * threshold, 2 * threshold)
-    counts = np.histogram(h, edges)[0]
-    k = int(np.argmax(counts))
-    if counts[k] < TABLE_SHARE * plane_points:
-        return 0.0
-    return float(np.median(h[(h >= edges[k]) & (h <= edges[k + 1])]))
+    level, count = densest_level(h, lo, hi, 2 * threshold)
+    return level if level is not None and count >= TABLE_SHARE * plane_points else 0.0
 
 
 def auto_masks(depth, K, *, depth_unit="mm", image_size=None, min_depth: float = 0.1, max_depth: float = 3.0,

@@ -142,8 +142,9 @@ def region_bounds(region: dict, shape) -> tuple:
     (H, W): the box when given, else the mask's bounding box. Raises ``RegionError`` (``check_box``, ``check_mask``)."""
     if region.get("box") is not None:
         return check_box(region["box"], shape)
-    rows, cols = np.nonzero(check_mask(region["mask"], shape))
-    return int(cols.min()), int(rows.min()), int(cols.max()) + 1, int(rows.max()) + 1
+    m = check_mask(region["mask"], shape)                                       # [H, W] bool, not empty
+    rows, cols = np.flatnonzero(m.any(1)), np.flatnonzero(m.any(0))             # occupied rows, columns
+    return int(cols[0]), int(rows[0]), int(cols[-1]) + 1, int(rows[-1]) + 1
 
 
 def check_mask(mask, shape) -> np.ndarray:

@@ -28,7 +28,7 @@ import numpy as np
 
 from equipose import PoseEstimator
 from equipose.core.errors import EquiposeError
-from equipose.preprocess import auto_masks, depth_to_metres, find_support_plane
+from equipose.preprocess import auto_masks, depth_to_metres, find_support_plane, region_bounds
 
 WRONG_DEG = 30.0
 HERE = pathlib.Path(__file__).resolve().parent
@@ -47,11 +47,6 @@ def iou(a, b) -> float:
     h = max(0, min(a[3], b[3]) - max(a[1], b[1]))
     inter = w * h
     return inter / float((a[2] - a[0]) * (a[3] - a[1]) + (b[2] - b[0]) * (b[3] - b[1]) - inter)
-
-
-def mask_box(mask: np.ndarray) -> tuple:
-    rows, cols = np.nonzero(mask)
-    return int(cols.min()), int(rows.min()), int(cols.max()) + 1, int(rows.max()) + 1
 
 
 def row_of(obj: dict, prompt: str, result, up: np.ndarray, unsigned: bool) -> dict:
@@ -106,9 +101,9 @@ def main(argv=None) -> int:
                 rows.append(row_of(obj, prompt, r, up, unsigned))
                 if prompt == "box" and a.overlays:
                     drawn.setdefault(frame, []).append((obj, r))
-            best = max(masks, key=lambda m: iou(mask_box(m), obj["box"]), default=None)
+            best = max(masks, key=lambda m: iou(region_bounds({"mask": m}, m.shape), obj["box"]), default=None)
             result = None
-            if best is not None and iou(mask_box(best), obj["box"]) >= 0.3:
+            if best is not None and iou(region_bounds({"mask": best}, best.shape), obj["box"]) >= 0.3:
                 result = est.predict_batch(depth, K, masks=[best], depth_unit="mm", return_errors=True)[0]
             if result is not None and not isinstance(result, Exception):
                 rows.append(row_of(obj, "auto", result, up, unsigned))
