@@ -67,7 +67,8 @@ READABLE_FORMATS = (1, 2, 3)                               # 1: kNN and hypothes
 FRAME_PRIOR_STEPS = ("rest", "mirror", "footprint")       # equipose.runtime.frame_priors
 CONFIDENCE_FEATURES = ("margin", "flip_margin", "residual", "outliers", "coverage", "occlusion", "log_points",
                        "ambiguous", "up_given", "handle_seen", "handle_share", "plane_tilt",
-                       "handle_fit_share", "handle_fit_mass", "plane_float", "plane_sink", "plane_rest")
+                       "handle_fit_share", "handle_fit_mass", "plane_float", "plane_sink", "plane_rest",
+                       "axis_ratio")
                                                            # equipose.runtime.stages.confidence
 MAX_COPIES = 64                                            # refine_calibration copies; equipose.runtime.copies
 MAX_POLISH = 200                                           # refine_calibration polish; equipose.runtime.refine

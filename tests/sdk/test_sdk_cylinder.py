@@ -116,18 +116,29 @@ def test_the_side_normals_refine_a_cups_axis():
         assert np.degrees(np.arccos(min(1.0, refine_side_axis(n, -off) @ -R[:, 2]))) < bound
 
 
-def test_an_up_prior_the_can_contradicts_is_flagged():
-    """Under an up prior the stage keeps the pose; a can lying on its side while the prior says it stands is flagged
-    ``ambiguous`` (extra ``up_contradicted``), a standing one is not."""
+def test_an_up_prior_the_can_contradicts_lays_it_down():
+    """Under an up prior a standing can keeps the prior's pose (extra ``rest`` "standing"). A can lying on its side
+    while the prior says it stands is turned onto its side: its axis level, within 5° of the truth, its centre
+    re-fitted, ``rest`` "lying", ``up_contradicted``, not flagged ``ambiguous`` (the normals decided)."""
     from scipy.spatial.transform import Rotation
     R = Rotation.from_euler("xyz", [60, 10, 20], degrees=True).as_matrix()    # the can's true pose (camera frame)
-    P = view(closed_cylinder(0.033, 0.12), R)
-    lying = R @ Rotation.from_euler("x", 90.0, degrees=True).as_matrix()       # what a wrong "stands" prior gives
-    for pose, contradicted in ((R, False), (lying, True)):
-        state = posed_state(P, pose, np.zeros(3), up=pose[:, 2])
-        CylinderStage(unsigned=True).run(state)
-        assert np.allclose(state.rotation, pose)                                # the prior's axis is kept
-        assert state.extras["up_contradicted"] is contradicted and state.ambiguous is contradicted
+    shape = closed_cylinder(0.033, 0.12)
+    P = view(shape, R)
+    state = posed_state(P, R, np.zeros(3), canonical=shape, up=R[:, 2])
+    CylinderStage(unsigned=True).run(state)
+    assert np.allclose(state.rotation, R)                                       # the prior's axis is kept
+    assert state.extras["rest"] == "standing" and state.extras["up_contradicted"] is False and not state.ambiguous
+    assert state.extras["axis_ratio"] > 1.0                                     # no other axis fits better
+    stands = R @ Rotation.from_euler("x", 90.0, degrees=True).as_matrix()      # what a wrong "stands" prior gives
+    up = stands[:, 2]
+    state = posed_state(P, stands, np.array([0.004, -0.003, 0.002]), canonical=shape, up=up)
+    CylinderStage(unsigned=True).run(state)
+    axis = state.rotation[:, 2]
+    assert abs(float(axis @ up)) < 1e-6                                         # level
+    assert np.degrees(np.arccos(min(1.0, abs(float(axis @ R[:, 2]))))) < 5.0
+    assert np.linalg.norm(state.translation) < 0.004                            # re-centred on the points
+    assert state.extras["rest"] == "lying" and state.extras["up_contradicted"] is True and not state.ambiguous
+    assert state.extras["axis_ratio"] > 1.0                                     # the lying axis is the better fit
 
 
 def test_the_table_normal_is_a_candidate_axis():

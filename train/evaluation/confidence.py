@@ -150,7 +150,7 @@ def collect_modelnet(model, data_root=None, cache_dir=None, limit: int | None = 
     return rows
 
 
-MONOTONE = ("margin", "flip_margin")      # a larger margin never lowers the confidence
+MONOTONE = ("margin", "flip_margin", "axis_ratio")   # a larger margin never lowers the confidence
 AGAINST = ("plane_tilt", "plane_float", "plane_sink", "plane_rest")   # a pose tilted on, floating above, sunk into
                                                         # or leaning on its support plane is never more likely right
 

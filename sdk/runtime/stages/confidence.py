@@ -21,7 +21,9 @@ of the object was seen —
   that support plane, in shape RMS radii, clipped to 0..``CONTACT_CLIP`` (0 without a plane): an object standing on
   a table touches it;
 - ``plane_rest``: |sin 2θ| for the same angle θ: 0 where the pose rests on the plane upright, lying on its side or
-  upside down, 1 halfway between (45°, 135°), where nothing stands by itself (0 without a plane).
+  upside down, 1 halfway between (45°, 135°), where nothing stands by itself (0 without a plane);
+- ``axis_ratio``: cans under an up prior: the cylinder stage's cost of the best other axis over the pose's axis
+  (near 1: the normals barely decide between standing and lying); ``AXIS_RATIO_CLIP`` where the stage did not run.
 
 With ``confidence_calibration`` in the model file, ``confidence`` = σ(bias + Σ weight·feature): the estimated chance
 that the rotation is within 10° of the truth (modulo the symmetry) and the centre within 2 cm, fitted on rendered
@@ -37,6 +39,7 @@ import math
 import numpy as np
 
 from equipose.core.nearest import nearest_distances
+from equipose.runtime.stages.cylinder import AXIS_RATIO_CLIP
 from equipose.runtime.stage import ObjectState, Stage, register_stage
 
 __all__ = ["ConfidenceStage", "FAR", "evidence", "logistic"]
@@ -84,6 +87,7 @@ def evidence(state: ObjectState) -> dict:
         "plane_rest": 0.0 if cos_up is None else float(abs(2.0 * cos_up * math.sqrt(max(0.0, 1.0 - cos_up ** 2)))),
         "plane_float": float(np.clip(gap, 0.0, CONTACT_CLIP)),
         "plane_sink": float(np.clip(-gap, 0.0, CONTACT_CLIP)),
+        "axis_ratio": float(state.extras.get("axis_ratio", AXIS_RATIO_CLIP)),
     }
 
 

@@ -5,10 +5,12 @@ so where the frame has a support plane under a can the pose is half-turned about
 the plane's side (a standing can reports upright); an open cylinder keeps the network's sign (a cup may stand on its
 rim), and its axis is then refined on the side normals (``refine_side_axis``: the network's axis is the less
 precise one for cups and mugs, the more precise one for cans).
-With an up prior (``state.up``) the axis is given and the stage leaves the pose, but where a can's normals clearly
-say the axis lies ≥ 45° from it (lying on its side while the prior says it stands) the result is flagged
-``ambiguous`` (result extra ``up_contradicted``; not for cups and mugs, whose tapered sides flagged 0.068 of rendered
-standing cups).
+With an up prior (``state.up``) the axis is given and the stage leaves the pose, except where a can's normals
+clearly say the axis lies ≥ 45° from it: the can lies on its side, its other rest pose. Its axis then becomes the
+normals' axis turned level (perpendicular to up), and the result reports ``rest`` "lying" (else "standing") and
+``up_contradicted`` True. Extra ``axis_ratio``: the cylinder-pattern cost of the best axis ≥ 45° from the pose's
+over the pose's own (below 1: another axis fits the normals better; clipped at 2). Cups and mugs keep the prior's axis: their tapered sides would turn 0.068 of rendered
+standing cups onto their side.
 
 Convention: model units, centred camera frame; the symmetry axis is the pose's +z column.
 """
@@ -17,6 +19,7 @@ from __future__ import annotations
 import numpy as np
 
 from equipose.core.geometry import rotation_between
+from equipose.core.icp import icp_multi
 from equipose.core.normals import point_normals
 from equipose.runtime.cylinder import SWITCH_ANGLE_DEG, cylinder_axis, refine_side_axis
 from equipose.runtime.stage import ObjectState, Stage, register_stage
@@ -26,6 +29,8 @@ __all__ = ["CylinderStage"]
 NORMAL_NEIGHBOURS = 12      # points per PCA normal
 UP_CONTRADICTION_RATIO = 0.95   # under an up prior: a far axis whose cost is below this × the prior's contradicts it
                                 # (rendered cans: 0.970 of lying ones flagged, 0.005 of standing ones)
+AXIS_RATIO_CLIP = 2.0       # result extra ``axis_ratio`` (evidence): saturates here
+LYING_ICP_ITERS = 8         # ICP steps that re-centre a can turned onto its side (its axis held level)
 
 
 @register_stage
@@ -50,11 +55,21 @@ class CylinderStage(Stage):
             return
         a0 = state.rotation[:, 2]
         normals = point_normals(state.points, NORMAL_NEIGHBOURS)                # [N, 3]
-        if state.up is not None:                    # the up prior fixes the axis; a view that contradicts it is flagged
-            a, _, _ = cylinder_axis(state.points, a0, normals=normals, ratio=UP_CONTRADICTION_RATIO)
-            contradicted = bool(abs(float(a @ a0)) < np.cos(np.radians(SWITCH_ANGLE_DEG)))
+        if state.up is not None:                    # the up prior fixes the axis unless the can clearly lies
+            a, c0, c_far = cylinder_axis(state.points, a0, normals=normals, ratio=np.inf)   # the best far axis
+            contradicted = bool(c_far < UP_CONTRADICTION_RATIO * c0)
             state.extras["up_contradicted"] = contradicted
-            state.ambiguous = bool(state.ambiguous or contradicted)
+            ratio = c0 / c_far if contradicted else c_far / c0                  # the other axis's cost / the pose's
+            state.extras["axis_ratio"] = float(min(ratio, AXIS_RATIO_CLIP))
+            state.extras["rest"] = "lying" if contradicted else "standing"
+            if contradicted:
+                up = np.asarray(state.up, np.float64)                           # [3] unit, camera frame
+                level = a - float(a @ up) * up                                  # [3] the axis turned level
+                level /= np.linalg.norm(level)
+                R0 = rotation_between(a0, level) @ state.rotation                   # [3, 3]
+                R, t, _ = icp_multi(state.points, state.canonical_category, R0[None], state.translation[None],
+                                    iters=LYING_ICP_ITERS, hold=(2, level))     # the centre, the axis held level
+                state.set_pose(R[0], t[0])
             return
         table = () if state.support_up is None else (state.support_up,)         # standing is a candidate too
         a, _, _ = cylinder_axis(state.points, a0, normals=normals, candidates=table)
