@@ -38,7 +38,8 @@ PROFILES: dict = {
                 "can-tabletop": {"rescore": {"k": 4}},
                 "bowl-tabletop": {"rescore": {"k": 4}},
                 "sofa-partial": {"polish": {"points": 1024}, "rescore": {"points": 128}},
-                "chair-partial": {"view": {"k": 2}}},           # its calibrated re-scoring and polish (v0.33)
+                "chair-partial": {"view": {"k": 2}, "rescore": {"points": 128, "iters": 20},
+                                  "polish": {"iters": 20}}},     # v0.33's view k; v0.37's re-scoring and polish
     "fast": {"*": FAST},
 }
 
