@@ -117,6 +117,29 @@ def test_stage_applies_the_logistic_model_and_keeps_the_margin():
     assert plain.confidence == 0.4 and "evidence" in plain.extras
 
 
+def test_a_runner_up_within_the_fitted_margin_flags_the_result_ambiguous():
+    """A selection margin below the calibration's ``runner_up_margin`` flags the result ``ambiguous``, and the
+    evidence reads the flag; a clear margin, or a calibration without the key, leaves the flag as the stages set it."""
+    canon = _cloud(seed=2)
+    cal = {"features": ("margin", "ambiguous"), "weights": np.array([1.0, -3.0]), "bias": 0.0, "runner_up_margin": 0.02}
+    for c, margin, flagged in ((cal, 0.01, True), (cal, 0.04, False), ({**cal, "runner_up_margin": 0.0}, 0.01, False),
+                               ({k: v for k, v in cal.items() if k != "runner_up_margin"}, 0.01, False)):
+        state = posed_state(canon, np.eye(3), np.zeros(3), canonical=canon)
+        state.confidence, state.ambiguous = margin, False
+        ConfidenceStage(c).run(state)
+        assert state.ambiguous is flagged and state.extras["evidence"]["ambiguous"] == float(flagged)
+        assert state.confidence == pytest.approx(1 / (1 + math.exp(-(margin - 3.0 * flagged))))
+
+
+def test_the_runner_up_margin_is_fitted_where_low_margins_are_coin_tosses():
+    from equipose.train.evaluation.confidence import runner_up_margin
+    rows = [{"margin": 0.001 * i, "right": i % 2 == 0} for i in range(10)]        # margins < 0.01: half wrong
+    rows += [{"margin": 0.02 + 0.003 * i, "right": True} for i in range(10)]     # 0.02–0.047: right
+    rows += [{"margin": 0.2 + 0.01 * i, "right": True} for i in range(40)]
+    assert runner_up_margin(rows) == 0.02                                      # the widest candidate with ≥ 0.5 wrong
+    assert runner_up_margin([{**r, "right": True} for r in rows]) == 0.0
+
+
 def test_calibration_metadata_round_trip_and_errors(tiny_model, tmp_path):
     from equipose.export.onnx_export import update_metadata
     path = tmp_path / "m.onnx"

@@ -267,12 +267,34 @@ def choose_features(rows: list, features) -> list:
     return min(sets, key=lambda c: grouped_log_loss(rows, c))
 
 
+RUNNER_UP_CANDIDATES = (0.05, 0.03, 0.02, 0.01, 0.005)   # selection margins tried, widest first
+RUNNER_UP_MIN_RESULTS = 5
+
+
+def runner_up_margin(rows: list) -> float:
+    """The widest selection margin below which the results are wrong at least half the time (at least
+    ``RUNNER_UP_MIN_RESULTS`` of them), else 0: below it another pose > 30° away fits as well, and the confidence stage
+    flags the result ``ambiguous``. Rows need "margin" (as the stages left it) and "right"."""
+    margin = np.array([r["margin"] for r in rows], np.float64)                 # [n]
+    wrong = ~np.array([bool(r["right"]) for r in rows])                        # [n]
+    for t in RUNNER_UP_CANDIDATES:
+        below = margin < t
+        if below.sum() >= RUNNER_UP_MIN_RESULTS and wrong[below].mean() >= 0.5:
+            return t
+    return 0.0
+
+
 def calibrate(rows: list, features=CONFIDENCE_FEATURES) -> tuple:
-    """(metadata dict for ``confidence_calibration``, held-out summary, held-out rows with "p"). The features are
-    chosen on the fit rows alone (``choose_features``)."""
+    """(metadata dict for ``confidence_calibration``, held-out summary, held-out rows with "p"). The runner-up margin
+    (``runner_up_margin``) and the features (``choose_features``) are chosen on the fit rows alone; the rows below
+    that margin are flagged ``ambiguous``, as the stage will flag them, before the fit."""
     fit, held = split_rows(rows)
     if not fit or not held:
         raise ConfigError("confidence calibration needs views of at least two test shapes")
+    runner_up = runner_up_margin(fit)
+    for r in rows:
+        if r["margin"] < runner_up:
+            r["ambiguous"] = 1.0
     features = [f for f in features if all(f in r for r in rows) and np.ptp([r[f] for r in rows]) > 0]
     # (features a row set lacks, or that are constant, carry nothing)
     features = choose_features(fit, features)
@@ -288,7 +310,8 @@ def calibrate(rows: list, features=CONFIDENCE_FEATURES) -> tuple:
             "fitted_on": f"{len(fit)} " + ("rendered occluded tabletop views" if tabletop else "ModelNet test "
                                           "samples") + f" (even-numbered shapes); held out {len(held)}",
             "held_out": {k: round(v, 4) if isinstance(v, float) else v for k, v in summary.items()
-                         if k != "reliability"}}
+                         if k != "reliability"},
+            "runner_up_margin": runner_up}
     return meta, summary, held
 
 

@@ -25,6 +25,11 @@ of the object was seen —
 - ``axis_ratio``: cans under an up prior: the cylinder stage's cost of the best other axis over the pose's axis
   (near 1: the normals barely decide between standing and lying); ``AXIS_RATIO_CLIP`` where the stage did not run.
 
+Before the evidence is read, a result whose selection margin is below the calibration's ``runner_up_margin`` is
+flagged ``ambiguous``: a pose more than 30° away explains the points about as well, and on the fitting views such
+results were wrong at least half the time (``equipose.train.evaluation.confidence.runner_up_margin``; 0.02 on
+rendered cups, where they were wrong 0.6 of the time; absent: no such flag).
+
 With ``confidence_calibration`` in the model file, ``confidence`` = σ(bias + Σ weight·feature): the estimated chance
 that the rotation is within 10° of the truth (modulo the symmetry) and the centre within 2 cm, fitted on rendered
 views with occluders and sensor noise (``equipose.train.evaluation.confidence``); the selection margin stays in the
@@ -125,9 +130,11 @@ class ConfidenceStage(Stage):
     def run(self, state: ObjectState) -> None:
         if state.rotation is None:                                              # no pose chosen: nothing to judge
             return
+        c = self.calibration
+        if c is not None and state.confidence < c.get("runner_up_margin", 0.0):   # a pose > 30° away fits as well
+            state.ambiguous = True
         ev = evidence(state)
         state.extras["evidence"] = {k: round(v, 6) for k, v in ev.items()}
-        c = self.calibration
         if c is None:
             return
         z = c["bias"] + float(np.dot(c["weights"], [ev[f] for f in c["features"]]))
