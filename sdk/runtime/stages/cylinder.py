@@ -21,7 +21,7 @@ import numpy as np
 from equipose.core.geometry import rotation_between
 from equipose.core.icp import icp_multi
 from equipose.core.normals import point_normals
-from equipose.runtime.cylinder import SWITCH_ANGLE_DEG, cylinder_axis, refine_side_axis
+from equipose.runtime.cylinder import cylinder_axis, refine_side_axis
 from equipose.runtime.stage import ObjectState, Stage, register_stage
 
 __all__ = ["CylinderStage"]
