@@ -129,8 +129,9 @@ def place_label(anchor, size, shape, taken: list) -> list:
     return box
 
 
-_LEGEND = ["axes: x red, y green, z blue; box: the shape's extent", "conf: 0 = a close competitor, 1 = none",
-           "AMBIGUOUS: a turned pose fits as well"]
+_LEGEND = ["axes: x red, y green, z blue; box: the shape's extent",
+           "conf: the estimated chance that the pose is right",
+           "AMBIGUOUS: another pose fits about as well"]
 
 
 def draw_poses(image, K, results, *, legend: bool = True, thickness: int = 2) -> np.ndarray:
