@@ -27,7 +27,8 @@ __all__ = ["UP_TOLERANCE_DEG", "UP_AXIS", "check_up", "upright_icp", "select_upr
 
 UP_TOLERANCE_DEG = 40.0    # hypotheses whose up axis is this close to ``up`` are refined (≈ 7 of the 60)
 UP_AXIS = 2                # the category frame's up axis (+z) for every equipose category
-PLANE_MIN_HEIGHT_M = 0.012  # an object stands on a plane when most of its points are higher than this
+PLANE_MIN_HEIGHT_M = 0.012  # an object stands on a plane when enough of its points are higher than this:
+PLANE_MIN_SHARE = 0.25      # this share (a bowl seen from above shows mostly its inside floor, just above the table)
 COARSE_ITERS = 3          # ICP steps for every start
 FINE_K, FINE_ITERS = 2, 8   # then this many best (+ the front/back partner of the best) go on for FINE_ITERS
 
@@ -116,17 +117,18 @@ def select_upright(points, template, R_cat, t_cat, scores, up, *, symmetry: str 
     return sel, R[b], t[b]
 
 
-def resolve_support_plane(plane, points, min_height: float = PLANE_MIN_HEIGHT_M) -> tuple | None:
+def resolve_support_plane(plane, points, min_height: float = PLANE_MIN_HEIGHT_M,
+                          min_share: float = PLANE_MIN_SHARE) -> tuple | None:
     """The support plane an object stands on, as (unit normal [3], offset m): a camera-frame point x lies
     ``normal · x + offset`` metres above it. ``plane`` is (normal, offset) as ``find_support_plane`` returns it (the
     normal points to the camera side, i.e. up for a table seen from above). None: no plane, or the object's
-    ``points`` [P, 3] (metres, camera frame) do not stand on it — fewer than half of them lie ``min_height`` above
-    it (the "plane" is the object's own face, or a wall behind it)."""
+    ``points`` [P, 3] (metres, camera frame) do not stand on it — fewer than ``min_share`` of them lie ``min_height``
+    above it (the "plane" is the object's own face, or a wall behind it)."""
     if plane is None:
         return None
     n = np.asarray(plane[0], np.float64).reshape(3)
     heights = np.asarray(points, np.float64) @ n + float(plane[1])             # [P] m above the plane
-    if np.mean(heights > min_height) < 0.5:
+    if np.mean(heights > min_height) < min_share:
         return None
     norm = float(np.linalg.norm(n))
     return n / norm, float(plane[1]) / norm

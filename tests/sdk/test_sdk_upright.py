@@ -130,3 +130,19 @@ def test_select_upright_keeps_given_starts_and_flags_a_better_partner(rng):
     assert sel.ambiguous and sel.flip_margin < 0                                # ... but reported: the partner fits better
     sel2, R2, _ = select_upright(x, y, hyps, np.zeros((60, 3)), np.ones(60), R_true[:, 2])
     assert rotation_angle_deg(R2, R_true) < 2.0                                 # free selection takes the partner
+
+
+def test_a_bowl_seen_from_above_stands_on_the_plane():
+    """A shallow bowl seen from above shows mostly its inside floor, just above the table: with 30 % of its points
+    more than 12 mm up it stands on the plane; a flat face that is the "plane" itself (10 % up) does not."""
+    from equipose.runtime.upright import resolve_support_plane
+    rng = np.random.default_rng(0)
+    n, offset = np.array([0.0, -0.6, -0.8]), 0.7                               # unit normal towards the camera
+    base = rng.normal(size=(1000, 3)) * 0.05
+    base -= np.outer(base @ n + offset, n)                                     # [1000, 3] on the plane
+    for share, stands in ((0.30, True), (0.10, False)):
+        heights = np.where(np.arange(1000) < share * 1000, 0.03, 0.005)         # m above the plane
+        support = resolve_support_plane((n, offset), base + np.outer(heights, n))
+        assert (support is not None) is stands
+        if stands:
+            assert np.allclose(support[0], n) and np.isclose(support[1], offset)
