@@ -27,8 +27,8 @@ of the object was seen —
 
 Before the evidence is read, a result whose selection margin is below the calibration's ``runner_up_margin`` is
 flagged ``ambiguous``: a pose more than 30° away explains the points about as well, and on the fitting views such
-results were wrong at least half the time (``equipose.train.evaluation.confidence.runner_up_margin``; 0.02 on
-rendered cups, where they were wrong 0.6 of the time; absent: no such flag).
+results were wrong at least half the time (``equipose.train.evaluation.confidence.runner_up_margin``; the shipped
+cup, bowl and mug files hold 0.05, can 0.03; absent: no such flag).
 
 With ``confidence_calibration`` in the model file, ``confidence`` = σ(bias + Σ weight·feature): the estimated chance
 that the rotation is within 10° of the truth (modulo the symmetry) and the centre within 2 cm, fitted on rendered

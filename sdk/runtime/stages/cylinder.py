@@ -9,8 +9,8 @@ With an up prior (``state.up``) the axis is given and the stage leaves the pose,
 clearly say the axis lies ≥ 45° from it: the can lies on its side, its other rest pose. Its axis then becomes the
 normals' axis turned level (perpendicular to up), and the result reports ``rest`` "lying" (else "standing") and
 ``up_contradicted`` True. Extra ``axis_ratio``: the cylinder-pattern cost of the best axis ≥ 45° from the pose's
-over the pose's own (below 1: another axis fits the normals better; clipped at 2). Cups and mugs keep the prior's axis: their tapered sides would turn 0.068 of rendered
-standing cups onto their side.
+over the pose's own (below 1: another axis fits the normals better; clipped at 2). Cups and mugs keep the prior's
+axis: their tapered sides would turn 0.068 of rendered standing cups onto their side.
 
 Convention: model units, centred camera frame; the symmetry axis is the pose's +z column.
 """
