@@ -37,7 +37,8 @@ PROFILES: dict = {
                 "cup-tabletop": {"rescore": {"k": 4}},
                 "can-tabletop": {"rescore": {"k": 4}},
                 "bowl-tabletop": {"rescore": {"k": 4}},
-                "sofa-partial": {"polish": {"points": 1024}, "rescore": {"points": 128}},
+                "sofa-partial": {"polish": {"points": 1024}, "rescore": {"points": 128, "densify": 4},
+                                 "copies": {"count": 4}},       # v0.38: 4 copies on a denser template
                 "chair-partial": {"view": {"k": 2}, "rescore": {"points": 128, "iters": 20},
                                   "polish": {"iters": 20}}},     # v0.33's view k; v0.37's re-scoring and polish
     "fast": {"*": FAST},

@@ -37,6 +37,7 @@ def densify_template(points: np.ndarray, k: int) -> np.ndarray:
     _, nn = cKDTree(Y).query(Y, k + 1)                                          # [M, k+1], column 0: the point
     i = np.repeat(np.arange(len(Y)), k)                                         # [M·k]
     j = nn[:, 1:].reshape(-1)                                                   # [M·k]
-    pairs = np.unique(np.stack([np.minimum(i, j), np.maximum(i, j)], 1), axis=0)  # [D, 2] each pair once
-    pairs = pairs[pairs[:, 0] != pairs[:, 1]]                                   # duplicate points: no midpoint
-    return np.concatenate([Y, (Y[pairs[:, 0]] + Y[pairs[:, 1]]) / 2])         # [M + D, 3]
+    key = np.unique(np.minimum(i, j) * len(Y) + np.maximum(i, j))             # [D] each pair once, (low, high) order
+    low, high = np.divmod(key, len(Y))                                          # [D], [D]
+    keep = low != high                                                          # duplicate points: no midpoint
+    return np.concatenate([Y, (Y[low[keep]] + Y[high[keep]]) / 2])            # [M + D, 3]

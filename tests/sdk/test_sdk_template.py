@@ -33,6 +33,17 @@ def test_densify_fills_the_surface_between_points():
     assert np.isfinite(with_dupes).all() and len(with_dupes) > 20
 
 
+def test_densify_midpoints_in_pair_order():
+    """The midpoints follow the pairs (low index, high index) in lexicographic order, each pair once."""
+    rng = np.random.default_rng(2)
+    y = rng.normal(size=(64, 3))
+    y[9] = y[3]                                          # a duplicate: the tree may list a point as its own neighbour
+    _, nn = cKDTree(y).query(y, 4)
+    pairs = sorted({(min(i, int(j)), max(i, int(j))) for i in range(64) for j in nn[i, 1:] if j != i})
+    expected = np.array([(y[a] + y[b]) / 2 for a, b in pairs])
+    dense = densify_template(y, 3)
+    assert np.array_equal(dense[:64], y) and np.array_equal(dense[64:], expected)
+
 def test_densify_rejects_bad_input():
     for bad in (np.zeros((4, 2)), np.zeros(3)):
         with pytest.raises(InvalidPointsError):
