@@ -11,7 +11,8 @@ Kernels: ICP (point-to-point and point-to-plane) and nearest neighbours (``equip
 sampling (``equipose.core.geometry``), RANSAC plane fit (``equipose.preprocess.plane``), the organized outlier
 filter (``equipose.preprocess.crop``), the box prompt's surfaces (``equipose.preprocess.surfaces``), the mirror plane
 of the frame priors (``equipose.runtime.frame_priors``), point normals (``equipose.core.normals``: the cylinder stage,
-instance mode), the handle fit (``equipose.core.handles``).
+instance mode), the handle fit (``equipose.core.handles``), hidden point removal (its spherical flip,
+``equipose.runtime.visibility``, and convex hull, ``equipose.core.hull``: the view stage).
 """
 from __future__ import annotations
 
@@ -34,6 +35,7 @@ def load_kernels() -> float:
         return 0.0
     from equipose.core.geometry import farthest_point_order
     from equipose.core.handles import clustered_count, fit_handle, handle_zone_mask
+    from equipose.core.hull import hull_vertex_mask
     from equipose.core.icp import icp_multi, icp_point_to_plane
     from equipose.core.kernel_weights import kernel_inputs
     from equipose.core.neighbourhoods import (NeighbourhoodSpec, nearest_neighbourhoods, neighbourhood_specs,
@@ -48,6 +50,7 @@ def load_kernels() -> float:
     from equipose.preprocess.sampling import prepare_points
     from equipose.preprocess.surfaces import box_object_cluster, surface_segments
     from equipose.runtime.frame_priors import mirror_plane
+    from equipose.runtime.visibility import visible_mask
 
     t0 = time.perf_counter()
     rng = np.random.default_rng(0)
@@ -61,6 +64,8 @@ def load_kernels() -> float:
         nearest_distances(x, x, brute_max)
     nearest_distances(x, x)                                                     # the SDK's calls: default size
     farthest_point_order(x, 8)
+    hull_vertex_mask(x)
+    visible_mask(x, np.array([0.0, 0.0, -5.0]))
     hypothesis_scores(x[None], x[None], np.eye(3)[None, None], np.zeros((1, 1, 3)), bidirectional=True)
     nearest_neighbourhoods(x[None], NeighbourhoodSpec(support=40, centres=8, k=4, ordered=True))
     layers = (LayerSpec(1, 4, 40, 8, 0.5, 0.1, 0.3, 4), LayerSpec(4, 4, 8, 8, 0.5, 0.1, 0.3, 4))

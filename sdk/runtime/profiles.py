@@ -38,7 +38,7 @@ PROFILES: dict = {
                 "can-tabletop": {"rescore": {"k": 4}},
                 "bowl-tabletop": {"rescore": {"k": 4}},
                 "sofa-partial": {"polish": {"points": 1024}, "rescore": {"points": 128, "densify": 4},
-                                 "copies": {"count": 4}},       # v0.38: 4 copies on a denser template
+                                 "copies": {"count": 4}, "turn": {"points": 128}},   # v0.38: 4 copies, denser template
                 "chair-partial": {"view": {"k": 2}, "rescore": {"points": 128, "iters": 20},
                                   "polish": {"iters": 20}}},     # v0.33's view k; v0.37's re-scoring and polish
     "fast": {"*": FAST},

@@ -60,20 +60,29 @@ def turn_scores(weights: dict, model_points, rotation, translation, axes=("x", "
 
 
 class TurnScorer:
-    """``score_sets`` as an in-memory onnxruntime graph (MatMul + Add + Relu per layer, max and mean pooling) on
-    ``threads`` intra-op threads: the same scores to float32 rounding. Call with sets [S, n, 3] → scores [S]."""
+    """``score_sets`` as an in-memory onnxruntime graph (MatMul + Add + Relu per layer, max and mean pooling): the
+    same scores to float32 rounding. Call with sets [S, n, 3] → scores [S]. With ``threads`` > 1 the sets run in
+    parts side by side, each on its own one-thread session (a part's scores do not depend on the split; one session
+    with intra-op threads gained nothing on this small graph)."""
 
     def __init__(self, weights: dict, threads: int = 1):
         import onnxruntime as ort
 
+        from equipose.core.parallel import MAX_WORKERS
         from equipose.runtime.session import session_options
 
-        self.session = ort.InferenceSession(_scorer_graph(weights), sess_options=session_options(max(1, threads)),
-                                            providers=["CPUExecutionProvider"])
+        graph = _scorer_graph(weights)
+        self.sessions = [ort.InferenceSession(graph, sess_options=session_options(1), providers=["CPUExecutionProvider"])
+                         for _ in range(max(1, min(int(threads), MAX_WORKERS, 1 + len(HALF_TURNS))))]   # ≤ 1 per set
 
     def __call__(self, sets: np.ndarray) -> np.ndarray:
+        from equipose.core.parallel import run_parts, split_ranges
+
         x = np.ascontiguousarray(sets, np.float32)                                         # [S, n, 3]
-        return self.session.run(None, {"sets": x})[0][:, 0]                                # [S]
+        parts = split_ranges(len(x), len(self.sessions))
+        outs = run_parts(lambda sess, part: sess.run(None, {"sets": part})[0][:, 0],
+                         [(sess, x[a:b]) for sess, (a, b) in zip(self.sessions, parts)])
+        return np.concatenate(outs)                                                        # [S]
 
 
 def _scorer_graph(weights: dict) -> bytes:

@@ -19,10 +19,12 @@ Convention:
 from __future__ import annotations
 
 import numpy as np
+from numba import njit
 from scipy.spatial import ConvexHull
 from scipy.spatial import QhullError
 
 from equipose.core.errors import InvalidPointsError
+from equipose.core.hull import hull_vertex_mask
 from equipose.core.neighbours import NearestNeighbours
 
 __all__ = ["visible_mask", "view_residuals", "view_rescore", "DEFAULT_EXPONENT", "INCUMBENT_MARGIN", "VIEW_AMBIGUOUS_MARGIN",
@@ -48,19 +50,40 @@ def visible_mask(points: np.ndarray, viewpoint, exponent: float = DEFAULT_EXPONE
         raise InvalidPointsError(f"visible_mask needs points [P ≥ 4, 3] and a viewpoint [3], got {P.shape}, {c.shape}")
     if not np.all(np.isfinite(P)) or not np.all(np.isfinite(c)):
         raise InvalidPointsError("visible_mask: points or viewpoint contain NaN/Inf")
-    d = P - c                                                                   # [P, 3] rays from the camera
-    r = np.linalg.norm(d, axis=1, keepdims=True)                                # [P, 1]
-    if np.any(r[:, 0] <= 0):
+    flipped = np.empty((len(P) + 1, 3))                                        # [P + 1, 3] the flip, then the camera
+    if not _spherical_flip(np.ascontiguousarray(P), c, 10.0 ** float(exponent), flipped):
         return np.ones(len(P), bool)
-    radius = float(r.max()) * 10.0 ** float(exponent)
-    flipped = d + 2.0 * (radius - r) * d / r                                    # [P, 3] spherical flip
-    try:
-        hull = ConvexHull(np.vstack([flipped, np.zeros((1, 3))]))
+    vertices, status = hull_vertex_mask(flipped, check=False)                   # [P + 1] compiled quickhull
+    if status == "ok":
+        return vertices[:len(P)]
+    try:                                                                        # flat or nearly degenerate: qhull
+        hull = ConvexHull(flipped)
     except QhullError:                                                          # coplanar / collinear
         return np.ones(len(P), bool)
     mask = np.zeros(len(P), bool)
     mask[hull.vertices[hull.vertices < len(P)]] = True
     return mask
+
+
+@njit(cache=True, nogil=True)
+def _spherical_flip(P, c, scale, out) -> bool:
+    """``out`` [P + 1, 3] ← each point's ray d from the camera ``c``, pushed out to 2·radius − |d| along itself
+    (radius = ``scale`` × the largest |d|), then the camera (the origin); False when a point sits on the camera."""
+    n = len(P)
+    r = np.empty(n)
+    for i in range(n):
+        d0, d1, d2 = P[i, 0] - c[0], P[i, 1] - c[1], P[i, 2] - c[2]
+        r[i] = np.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
+        if r[i] <= 0.0:
+            return False
+    radius = r.max() * scale
+    for i in range(n):
+        f = 2.0 * (radius - r[i])
+        for k in range(3):
+            d = P[i, k] - c[k]
+            out[i, k] = d + f * d / r[i]
+    out[n, 0], out[n, 1], out[n, 2] = 0.0, 0.0, 0.0
+    return True
 
 
 def view_residuals(observed: np.ndarray, template: np.ndarray, rotations: np.ndarray, translations: np.ndarray,
