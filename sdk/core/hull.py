@@ -1,11 +1,13 @@
 """Which points are vertices of their 3-D convex hull: a compiled quickhull for the small sets of the SDK's hot path.
 
 The view stage runs hidden point removal (``equipose.runtime.visibility``) on a posed template of a few hundred
-points for every hypothesis it ranks. ``scipy.spatial.ConvexHull`` (qhull) takes 0.17–0.4 ms per call there, most of
-it beyond the hull itself (facet merging, the Python object); this loop needs only the vertex set.
+points for every hypothesis it ranks and needs only the hull's vertex set, which this loop finds about three times
+faster than ``scipy.spatial.ConvexHull`` (qhull) builds the whole hull (docs/benchmarks.md, v0.38).
 
 Convention: ``points`` [N, 3] float64, any unit. A point closer than ``HULL_EPS`` × the set's extent to the hull of
-the others is not a vertex (qhull calls such points coplanar and leaves them out of ``vertices`` too). Quickhull:
+the others is not a vertex (qhull calls such points coplanar and leaves them out of ``vertices`` too). Where points
+lie exactly on a face (integer grids) the two may pick different ones of them; otherwise the vertex sets agree
+(tests/sdk/test_sdk_hull.py). Quickhull:
 start from a tetrahedron of extreme points, then repeatedly add the farthest point outside a facet, replace the
 facets it sees by a fan from it to their horizon, and hand the seen facets' outside points to the new ones. Facets
 are triangles wound counter-clockwise seen from outside; ``nb[f, k]`` is the facet across edge k (from vertex k to
@@ -20,7 +22,7 @@ from equipose.core.errors import InvalidPointsError
 
 __all__ = ["hull_vertex_mask", "HULL_EPS"]
 
-HULL_EPS = 1e-9             # the "outside a facet" margin, relative to the point set's extent
+HULL_EPS = 1e-11            # the "outside a facet" margin, relative to the point set's extent
 _OK, _FLAT, _FAILED, _FULL = 0, 1, 2, 3
 ROOM = 6                    # facets allotted per point (a retry gets 4× as many when a hull needs more)
 
@@ -205,6 +207,8 @@ def _quickhull(P, eps_rel, mask, cap) -> int:
                     npend += 1
                 i = nxt[i]
             head[g] = -1
+        if nh < 3:                                                              # p sees every facet: numerically lost
+            return _FAILED
         if count + nh > cap:
             return _FULL
         first = count
