@@ -28,6 +28,14 @@ def test_vertices_match_qhull_on_random_sets(rng, n):
         assert status == "ok" and np.array_equal(mask, _qhull_mask(p))
 
 
+
+@pytest.mark.parametrize("axes", [(1.0, 1.0, 1e-4), (1e3, 1e-2, 1.0)])
+def test_vertices_match_qhull_on_thin_and_stretched_sets(rng, axes):
+    for _ in range(20):
+        p = rng.normal(size=(int(rng.integers(20, 600)), 3)) * axes
+        mask, status = hull_vertex_mask(p)
+        assert status == "ok" and np.array_equal(mask, _qhull_mask(p))
+
 def test_every_point_on_a_sphere_is_a_vertex(rng, monkeypatch):
     """All N points on the hull; with 2 facets per point allotted the first pass runs out of room and the retry
     (4× the room) finishes it."""
