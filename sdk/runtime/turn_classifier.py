@@ -72,8 +72,9 @@ class TurnScorer:
         from equipose.runtime.session import session_options
 
         graph = _scorer_graph(weights)
-        self.sessions = [ort.InferenceSession(graph, sess_options=session_options(1), providers=["CPUExecutionProvider"])
-                         for _ in range(max(1, min(int(threads), MAX_WORKERS, 1 + len(HALF_TURNS))))]   # ≤ 1 per set
+        count = max(1, min(int(threads), MAX_WORKERS, 1 + len(HALF_TURNS)))                  # at most one per set
+        self.sessions = [ort.InferenceSession(graph, sess_options=session_options(1),
+                                              providers=["CPUExecutionProvider"]) for _ in range(count)]
 
     def __call__(self, sets: np.ndarray) -> np.ndarray:
         from equipose.core.parallel import run_parts, split_ranges

@@ -50,7 +50,7 @@ def visible_mask(points: np.ndarray, viewpoint, exponent: float = DEFAULT_EXPONE
         raise InvalidPointsError(f"visible_mask needs points [P ≥ 4, 3] and a viewpoint [3], got {P.shape}, {c.shape}")
     if not np.all(np.isfinite(P)) or not np.all(np.isfinite(c)):
         raise InvalidPointsError("visible_mask: points or viewpoint contain NaN/Inf")
-    flipped = np.empty((len(P) + 1, 3))                                        # [P + 1, 3] the flip, then the camera
+    flipped = np.empty((len(P) + 1, 3))                                        # [P + 1, 3] flip, then the camera
     if not _spherical_flip(np.ascontiguousarray(P), c, 10.0 ** float(exponent), flipped):
         return np.ones(len(P), bool)
     vertices, status = hull_vertex_mask(flipped, check=False)                   # [P + 1] compiled quickhull
