@@ -101,15 +101,16 @@ def view_residuals(observed: np.ndarray, template: np.ndarray, rotations: np.nda
             or R.ndim != 3 or R.shape[1:] != (3, 3) or t.shape != (len(R), 3):
         raise InvalidPointsError(f"view_residuals needs observed [N, 3], template [M ≥ 4, 3], rotations [J, 3, 3] and "
                                  f"translations [J, 3], got {x.shape}, {Y.shape}, {R.shape}, {t.shape}")
-    obs_tree, template_tree = NearestNeighbours(x), NearestNeighbours(Y)
-    out = np.empty(len(R))
-    for j in range(len(R)):
-        posed = Y @ R[j].T + t[j]                                               # [M, 3] = R y + t
-        d_obs, _ = template_tree.query((x - t[j]) @ R[j])                       # [N] observed → template (its frame)
-        seen = posed[visible_mask(posed, viewpoint, exponent)]                  # [V, 3]
-        d_seen, _ = obs_tree.query(seen)                                        # [V] visible template → observed
-        out[j] = float(np.mean(d_obs ** 2) + np.mean(d_seen ** 2))
-    return out
+    if not len(R):
+        return np.empty(0)
+    in_template = np.stack([(x - t[j]) @ R[j] for j in range(len(R))])        # [J, N, 3] observed, template frame
+    seen = [Y @ R[j].T + t[j] for j in range(len(R))]                          # [M, 3] each = R y + t
+    seen = [p[visible_mask(p, viewpoint, exponent)] for p in seen]              # [V_j, 3] what the camera sees
+    d_obs, _ = NearestNeighbours(Y).query(in_template)                          # [J, N] observed → template
+    d_seen, _ = NearestNeighbours(x).query(np.concatenate(seen))                # [ΣV] visible template → observed
+    ends = np.cumsum([len(p) for p in seen])[:-1]
+    return np.array([float(np.mean(a ** 2) + np.mean(b ** 2))                   # [J], one query per direction
+                     for a, b in zip(d_obs, np.split(d_seen, ends))])
 
 
 def view_rescore(prep, template: np.ndarray, rotations: np.ndarray, translations: np.ndarray, scores: np.ndarray, *,
