@@ -35,7 +35,6 @@ def load_kernels() -> float:
         return 0.0
     from equipose.core.geometry import farthest_point_order
     from equipose.core.handles import clustered_count, fit_handle, handle_zone_mask
-    from equipose.core.hull import hull_vertex_mask
     from equipose.core.icp import icp_multi, icp_point_to_plane
     from equipose.core.kernel_weights import kernel_inputs
     from equipose.core.neighbourhoods import (NeighbourhoodSpec, nearest_neighbourhoods, neighbourhood_specs,
@@ -64,8 +63,7 @@ def load_kernels() -> float:
         nearest_distances(x, x, brute_max)
     nearest_distances(x, x)                                                     # the SDK's calls: default size
     farthest_point_order(x, 8)
-    hull_vertex_mask(x)
-    visible_mask(x, np.array([0.0, 0.0, -5.0]))
+    visible_mask(x, np.array([0.0, 0.0, -5.0]))                                 # its flip and hull
     hypothesis_scores(x[None], x[None], np.eye(3)[None, None], np.zeros((1, 1, 3)), bidirectional=True)
     nearest_neighbourhoods(x[None], NeighbourhoodSpec(support=40, centres=8, k=4, ordered=True))
     layers = (LayerSpec(1, 4, 40, 8, 0.5, 0.1, 0.3, 4), LayerSpec(4, 4, 8, 8, 0.5, 0.1, 0.3, 4))

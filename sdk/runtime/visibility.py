@@ -104,8 +104,8 @@ def view_residuals(observed: np.ndarray, template: np.ndarray, rotations: np.nda
     if not len(R):
         return np.empty(0)
     in_template = np.stack([(x - t[j]) @ R[j] for j in range(len(R))])        # [J, N, 3] observed, template frame
-    seen = [Y @ R[j].T + t[j] for j in range(len(R))]                          # [M, 3] each = R y + t
-    seen = [p[visible_mask(p, viewpoint, exponent)] for p in seen]              # [V_j, 3] what the camera sees
+    posed = [Y @ R[j].T + t[j] for j in range(len(R))]                         # [M, 3] each = R y + t
+    seen = [p[visible_mask(p, viewpoint, exponent)] for p in posed]             # [V_j, 3] what the camera sees
     d_obs, _ = NearestNeighbours(Y).query(in_template)                          # [J, N] observed → template
     d_seen, _ = NearestNeighbours(x).query(np.concatenate(seen))                # [ΣV] visible template → observed
     ends = np.cumsum([len(p) for p in seen])[:-1]
