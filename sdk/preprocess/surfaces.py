@@ -19,6 +19,8 @@ __all__ = ["nearest_depth_cluster", "depth_clusters", "surface_segments", "box_o
 
 CUT_PENALTY = 0.3       # score factor of a candidate whose surface runs on past the box's sides (an occluder)
 CUT_SHARE = 0.5         # ... where this share of its points along the left, right and top sides continue outside
+SEED_SHARE = 0.5        # a surface seeds a candidate object from this share of ``min_fraction`` on (a bowl's front
+                        # wall seen over its rim can hold 6–10 % of the box's points)
 
 
 def nearest_depth_cluster(z: np.ndarray, gap_m: float = 0.03, rel_gap: float = 0.03,
@@ -202,9 +204,10 @@ def box_object_cluster(z: np.ndarray, rows: np.ndarray, cols: np.ndarray, box, m
 
     Convention: ``z`` [P] metres, ``rows``, ``cols`` [P] frame pixels of the box's points; ``box`` (x0, y0, x1, y1)
     pixel bounds. Candidates: with ``labels`` [P] (0 = nearest), ``cut`` (``surface_segments``), ``points`` [P, 3]
-    metres and ``focal`` pixels, each surface holding at least ``min_fraction`` of the points, grown by the surfaces it
-    hides in part while the union fits in a sphere of half the box's diagonal at its depth (``_grow``: the box bounds
-    the object's size); otherwise the split of the depth values (``depth_clusters``).
+    metres and ``focal`` pixels, each surface holding at least ``SEED_SHARE`` × ``min_fraction`` of the points, grown
+    by the surfaces it hides in part while the union fits in a sphere of half the box's diagonal at the seed's depth,
+    or at the union's depth where it is no deeper than the box is wide (``_grow``: the box bounds the object's size);
+    otherwise the split of the depth values (``depth_clusters``).
 
     Each candidate scores share × fit × exp(−2 d²), d the offset of its pixel centroid from the box centre in half-box
     units (a detector's box is centred on its object). Depth clusters: fit = 1 − the candidate's share of the box's
@@ -346,22 +349,35 @@ def _boundary_jumps(labels, n_labels, z, cut_i, cut_j, inside):
 
 
 @njit(cache=True)
-def _grow(seed, labels, n_labels, z, cut_i, cut_j, points, max_radius):
+def _depth_extent(z, members):
+    """Depth extent (m) of the ``members`` [P] bool: the span of their 2–98 % depths."""
+    s = np.sort(z[members])
+    return sorted_percentile(s, 98.0) - sorted_percentile(s, 2.0)
+
+
+@njit(cache=True)
+def _grow(seed, labels, n_labels, z, cut_i, cut_j, points, max_radius, diag_per_m, width_per_m):
     """The object grown from surface ``seed``: the surfaces bordering it from behind join (smallest depth jump first)
-    while the union's radius stays within ``max_radius`` — a cup's front wall and its inside beyond the rim are two
-    surfaces of one object, while what stands in front of an object never joins it, and the wall behind makes the
-    union too large. Returns (members [P] bool, [n_labels] median jump of each bordering surface left out, NaN
-    elsewhere; < 0 = in front)."""
+    while the union fits the box — a cup's front wall and its inside beyond the rim are two surfaces of one object,
+    while what stands in front of an object never joins it, and the wall behind makes the union too large.
+
+    A union fits when its radius stays within ``max_radius`` (the box's half diagonal in metres at the seed's depth),
+    or, for a seed nearer than the rest of its object (a bowl's front wall before its inside), within
+    ``diag_per_m`` × the union's median depth while it is no deeper than the box is wide there (``width_per_m`` ×
+    that depth): a gap to an object behind an occluder makes the union deeper than wide. Returns (members [P] bool,
+    [n_labels] median jump of each bordering surface left out, NaN elsewhere; < 0 = in front)."""
     keep = labels == seed
     for _ in range(32):                                                         # rounds of growth
         jumps = _boundary_jumps(labels, n_labels, z, cut_i, cut_j, keep)
         grown = False
         for seg in np.argsort(np.where(np.isnan(jumps), np.inf, jumps), kind="mergesort"):  # nearest in depth first
             jump = jumps[seg]
-            if not (0.0 < jump <= 2.0 * max_radius):                            # only what it hides in part
+            if not (0.0 < jump <= 2.0 * diag_per_m * sorted_median(np.sort(z[keep]))):  # what it hides in part
                 continue
             union = keep | (labels == seg)
-            if _radius(points, union) <= max_radius:
+            radius = _radius(points, union)
+            at = sorted_median(np.sort(z[union]))                               # the union's depth (m)
+            if radius <= max_radius or (radius <= diag_per_m * at and _depth_extent(z, union) <= width_per_m * at):
                 keep, grown = union, True
         if not grown:
             return keep, jumps
@@ -372,7 +388,7 @@ def _grow(seed, labels, n_labels, z, cut_i, cut_j, points, max_radius):
 def _choose_surface(z, rows, cols, box, labels, cut_i, cut_j, points, focal, min_fraction, border, beyond, step):
     """Grown-surface candidates: (keep [P] bool, number of candidates, points of the surfaces bordering it in front)."""
     P = len(z)
-    counts, big = _big_labels(labels, min_fraction)
+    counts, big = _big_labels(labels, SEED_SHARE * min_fraction)
     n_labels = len(counts)
     runs_on = _cut_labels(labels, n_labels, rows, cols, box, step, beyond)     # [n_labels] runs on past the box
     cx, cy, hw, hh = _box_frame(box)
@@ -390,7 +406,8 @@ def _choose_surface(z, rows, cols, box, labels, cut_i, cut_j, points, focal, min
     for k in range(len(big)):
         seg = big[k]
         keep, jumps = _grow(seg, labels, n_labels, z, cut_i, cut_j, points,
-                            half_diag_px * sorted_median(np.sort(z[labels == seg])) / focal)
+                            half_diag_px * sorted_median(np.sort(z[labels == seg])) / focal, half_diag_px / focal,
+                            2.0 * hw / focal)
         n, offset2 = _centre_offset2(keep, rows, cols, cx, cy, hw, hh)
         c_lo, c_hi, r_lo, r_hi = cols.max(), cols.min(), rows.max(), rows.min()
         for p in range(P):
