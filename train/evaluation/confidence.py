@@ -30,7 +30,7 @@ from scipy.optimize import minimize
 from equipose.core.errors import ConfigError, EquiposeError
 from equipose.core.metadata import CONFIDENCE_FEATURES
 from equipose.eval.metrics import auroc
-from equipose.runtime.stages.confidence import logistic
+from equipose.runtime.stages.confidence import below_runner_up, logistic
 
 __all__ = ["RIGHT_DEG", "RIGHT_M", "RIGHT_DIAG", "collect", "collect_modelnet", "fit_logistic", "auroc", "reliability", "summarize", "main"]
 
@@ -285,16 +285,16 @@ def runner_up_margin(rows: list) -> float:
 
 
 def calibrate(rows: list, features=CONFIDENCE_FEATURES) -> tuple:
-    """(metadata dict for ``confidence_calibration``, held-out summary, held-out rows with "p"). The runner-up margin
-    (``runner_up_margin``) and the features (``choose_features``) are chosen on the fit rows alone; the rows below
-    that margin are flagged ``ambiguous``, as the stage will flag them, before the fit."""
+    """(metadata dict for ``confidence_calibration``, held-out summary, the rows as fitted: copies of ``rows``, those
+    below the runner-up margin flagged ``ambiguous`` as the stage will flag them, the held-out ones with "p"). The
+    runner-up margin (``runner_up_margin``) and the features (``choose_features``) are chosen on the fit rows alone;
+    ``rows`` themselves are left as they are."""
+    runner_up = runner_up_margin(split_rows(rows)[0])
+    rows = [dict(r, ambiguous=1.0) if below_runner_up(r["margin"], {"runner_up_margin": runner_up}) else dict(r)
+            for r in rows]
     fit, held = split_rows(rows)
     if not fit or not held:
         raise ConfigError("confidence calibration needs views of at least two test shapes")
-    runner_up = runner_up_margin(fit)
-    for r in rows:
-        if r["margin"] < runner_up:
-            r["ambiguous"] = 1.0
     features = [f for f in features if all(f in r for r in rows) and np.ptp([r[f] for r in rows]) > 0]
     # (features a row set lacks, or that are constant, carry nothing)
     features = choose_features(fit, features)
@@ -312,7 +312,7 @@ def calibrate(rows: list, features=CONFIDENCE_FEATURES) -> tuple:
             "held_out": {k: round(v, 4) if isinstance(v, float) else v for k, v in summary.items()
                          if k != "reliability"},
             "runner_up_margin": runner_up}
-    return meta, summary, held
+    return meta, summary, rows
 
 
 def plot_reliability(summary: dict, path, title: str) -> None:
@@ -396,7 +396,7 @@ def main(argv=None) -> int:
     if without - set(CONFIDENCE_FEATURES):
         raise ConfigError(f"--without: unknown feature(s) {sorted(without - set(CONFIDENCE_FEATURES))}; features: "
                           f"{', '.join(CONFIDENCE_FEATURES)}")
-    meta, summary, _ = calibrate(rows, [f for f in CONFIDENCE_FEATURES if f not in without])
+    meta, summary, rows = calibrate(rows, [f for f in CONFIDENCE_FEATURES if f not in without])
     print(f"{pathlib.Path(a.model).name}: {len(rows)} results, right {summary['right_rate']:.2f}; held out: "
           f"AUROC {summary['auroc']:.3f} (margin {summary['margin_auroc']:.3f}), ECE {summary['ece']:.3f} "
           f"(margin {summary['margin_ece']:.3f}), confident-wrong {summary['confident_wrong']} "

@@ -47,7 +47,7 @@ from equipose.core.nearest import nearest_distances
 from equipose.runtime.stages.cylinder import AXIS_RATIO_CLIP
 from equipose.runtime.stage import ObjectState, Stage, register_stage
 
-__all__ = ["ConfidenceStage", "FAR", "evidence", "logistic"]
+__all__ = ["ConfidenceStage", "FAR", "evidence", "logistic", "below_runner_up"]
 
 FAR = 0.25          # RMS radii: a point farther than this from the other set is unexplained / unseen
 CONTACT_CLIP = 2.0  # RMS radii: plane_float / plane_sink saturate here
@@ -56,6 +56,13 @@ CONTACT_CLIP = 2.0  # RMS radii: plane_float / plane_sink saturate here
 def logistic(z):
     """σ(z) = 1 / (1 + e^−z), z clipped to ±60 (scalar or array)."""
     return 1.0 / (1.0 + np.exp(-np.clip(z, -60.0, 60.0)))
+
+
+def below_runner_up(margin: float, calibration: dict | None) -> bool:
+    """Whether a result with selection ``margin`` is flagged ``ambiguous`` under ``calibration`` (the
+    ``confidence_calibration`` entry, or None): its margin lies below the entry's ``runner_up_margin``, so a pose more
+    than 30° away explains the points about as well. The stage and the calibration's fit both apply this rule."""
+    return calibration is not None and margin < calibration.get("runner_up_margin", 0.0)
 
 
 def evidence(state: ObjectState) -> dict:
@@ -131,7 +138,7 @@ class ConfidenceStage(Stage):
         if state.rotation is None:                                              # no pose chosen: nothing to judge
             return
         c = self.calibration
-        if c is not None and state.confidence < c.get("runner_up_margin", 0.0):   # a pose > 30° away fits as well
+        if below_runner_up(state.confidence, c):                               # a pose > 30° away fits as well
             state.ambiguous = True
         ev = evidence(state)
         state.extras["evidence"] = {k: round(v, 6) for k, v in ev.items()}
