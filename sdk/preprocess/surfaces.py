@@ -316,13 +316,27 @@ def _radius(points, members):
     sel = points[members]                                                       # [M, 3]
     centre = np.empty(3)
     for a in range(3):
-        s = np.sort(sel[:, a])
-        centre[a] = 0.5 * (sorted_percentile(s, 2.0) + sorted_percentile(s, 98.0))
+        s = np.ascontiguousarray(sel[:, a])
+        centre[a] = 0.5 * (_percentile(s, 2.0) + _percentile(s, 98.0))
     d = np.empty(len(sel))
     for m in range(len(sel)):
         dx, dy, dz = sel[m, 0] - centre[0], sel[m, 1] - centre[1], sel[m, 2] - centre[2]
         d[m] = np.sqrt(dx * dx + dy * dy + dz * dz)
-    return sorted_percentile(np.sort(d), 95.0)
+    return _percentile(d, 95.0)
+
+
+@njit(cache=True)
+def _percentile(values, q):
+    """``sorted_percentile(np.sort(values), q)`` of ``values`` [n ≥ 1] from the two order statistics it needs, found
+    by selection instead of a full sort (the same value)."""
+    n = len(values)
+    v = (n - 1) * (q / 100.0)                                                   # as sorted_percentile
+    lo = int(np.floor(v))
+    part = np.partition(values, lo)
+    a = part[lo]
+    b = part[lo + 1:].min() if lo + 1 < n else a
+    gamma = v - lo
+    return b - (b - a) * (1.0 - gamma) if gamma >= 0.5 else a + (b - a) * gamma
 
 
 @njit(cache=True)
@@ -341,10 +355,14 @@ def _boundary_jumps(labels, n_labels, z, cut_i, cut_j, inside):
         diffs[m], owner[m] = z[j] - z[i], labels[j]
         m += 1
     out = np.full(n_labels, np.nan)
-    for seg in range(n_labels):
-        sel = owner[:m] == seg
-        if sel.any():
-            out[seg] = sorted_median(np.sort(diffs[:m][sel]))
+    order = np.argsort(owner[:m], kind="mergesort")                             # the pairs grouped by surface
+    a = 0
+    while a < m:
+        seg, b = owner[order[a]], a
+        while b < m and owner[order[b]] == seg:
+            b += 1
+        out[seg] = sorted_median(np.sort(diffs[order[a:b]]))
+        a = b
     return out
 
 
@@ -367,18 +385,23 @@ def _grow(seed, labels, n_labels, z, cut_i, cut_j, points, max_radius, diag_per_
     that depth): a gap to an object behind an occluder makes the union deeper than wide. Returns (members [P] bool,
     [n_labels] median jump of each bordering surface left out, NaN elsewhere; < 0 = in front)."""
     keep = labels == seed
+    depth = sorted_median(np.sort(z[keep]))                                     # the object's median depth (m)
     for _ in range(32):                                                         # rounds of growth
         jumps = _boundary_jumps(labels, n_labels, z, cut_i, cut_j, keep)
         grown = False
         for seg in np.argsort(np.where(np.isnan(jumps), np.inf, jumps), kind="mergesort"):  # nearest in depth first
             jump = jumps[seg]
-            if not (0.0 < jump <= 2.0 * diag_per_m * sorted_median(np.sort(z[keep]))):  # what it hides in part
+            if not (0.0 < jump <= 2.0 * diag_per_m * depth):                    # only what it hides in part
                 continue
             union = keep | (labels == seg)
             radius = _radius(points, union)
-            at = sorted_median(np.sort(z[union]))                               # the union's depth (m)
-            if radius <= max_radius or (radius <= diag_per_m * at and _depth_extent(z, union) <= width_per_m * at):
+            fits = radius <= max_radius
+            if not fits:
+                at = sorted_median(np.sort(z[union]))                           # the union's depth (m)
+                fits = radius <= diag_per_m * at and _depth_extent(z, union) <= width_per_m * at
+            if fits:
                 keep, grown = union, True
+                depth = sorted_median(np.sort(z[keep]))
         if not grown:
             return keep, jumps
     return keep, _boundary_jumps(labels, n_labels, z, cut_i, cut_j, keep)

@@ -364,3 +364,12 @@ def test_auto_masks_find_a_table_top_object_when_the_floor_dominates():
     assert table_level(np.zeros(100), 100, 0.012) == 0.0                        # a floor alone: no table
     h = np.concatenate([np.zeros(600), np.full(300, 0.7), np.linspace(0.75, 0.9, 50)])
     assert table_level(h, 600, 0.012) == pytest.approx(0.7)
+
+
+def test_surface_percentile_by_selection_equals_the_sorted_one(rng):
+    from equipose.core.order_statistics import sorted_percentile
+    from equipose.preprocess.surfaces import _percentile
+    for n in (1, 2, 3, 7, 50, 51, 997):
+        v = rng.normal(size=n)
+        for q in (0.0, 2.0, 50.0, 95.0, 98.0, 100.0):
+            assert _percentile(v.copy(), q) == sorted_percentile(np.sort(v), q), (n, q)
