@@ -12,7 +12,7 @@ import math
 import numpy as np
 from numba import njit
 
-from equipose.core.order_statistics import sorted_median, sorted_percentile
+from equipose.core.order_statistics import sorted_median
 
 __all__ = ["nearest_depth_cluster", "depth_clusters", "surface_segments", "box_object_cluster", "occluded_fraction",
            "continues_beyond_box", "CUT_PENALTY"]
@@ -369,8 +369,8 @@ def _boundary_jumps(labels, n_labels, z, cut_i, cut_j, inside):
 @njit(cache=True)
 def _depth_extent(z, members):
     """Depth extent (m) of the ``members`` [P] bool: the span of their 2–98 % depths."""
-    s = np.sort(z[members])
-    return sorted_percentile(s, 98.0) - sorted_percentile(s, 2.0)
+    sel = z[members]
+    return _percentile(sel, 98.0) - _percentile(sel, 2.0)
 
 
 @njit(cache=True)
