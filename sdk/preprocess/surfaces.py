@@ -12,7 +12,7 @@ import math
 import numpy as np
 from numba import njit
 
-from equipose.core.order_statistics import sorted_median
+from equipose.core.order_statistics import selected_percentile, sorted_median
 
 __all__ = ["nearest_depth_cluster", "depth_clusters", "surface_segments", "box_object_cluster", "occluded_fraction",
            "continues_beyond_box", "CUT_PENALTY"]
@@ -317,26 +317,12 @@ def _radius(points, members):
     centre = np.empty(3)
     for a in range(3):
         s = np.ascontiguousarray(sel[:, a])
-        centre[a] = 0.5 * (_percentile(s, 2.0) + _percentile(s, 98.0))
+        centre[a] = 0.5 * (selected_percentile(s, 2.0) + selected_percentile(s, 98.0))
     d = np.empty(len(sel))
     for m in range(len(sel)):
         dx, dy, dz = sel[m, 0] - centre[0], sel[m, 1] - centre[1], sel[m, 2] - centre[2]
         d[m] = np.sqrt(dx * dx + dy * dy + dz * dz)
-    return _percentile(d, 95.0)
-
-
-@njit(cache=True)
-def _percentile(values, q):
-    """``sorted_percentile(np.sort(values), q)`` of ``values`` [n ≥ 1] from the two order statistics it needs, found
-    by selection instead of a full sort (the same value)."""
-    n = len(values)
-    v = (n - 1) * (q / 100.0)                                                   # as sorted_percentile
-    lo = int(np.floor(v))
-    part = np.partition(values, lo)
-    a = part[lo]
-    b = part[lo + 1:].min() if lo + 1 < n else a
-    gamma = v - lo
-    return b - (b - a) * (1.0 - gamma) if gamma >= 0.5 else a + (b - a) * gamma
+    return selected_percentile(d, 95.0)
 
 
 @njit(cache=True)
@@ -370,22 +356,24 @@ def _boundary_jumps(labels, n_labels, z, cut_i, cut_j, inside):
 def _depth_extent(z, members):
     """Depth extent (m) of the ``members`` [P] bool: the span of their 2–98 % depths."""
     sel = z[members]
-    return _percentile(sel, 98.0) - _percentile(sel, 2.0)
+    return selected_percentile(sel, 98.0) - selected_percentile(sel, 2.0)
 
 
 @njit(cache=True)
-def _grow(seed, labels, n_labels, z, cut_i, cut_j, points, max_radius, diag_per_m, width_per_m):
+def _grow(seed, labels, n_labels, z, cut_i, cut_j, points, diag_per_m, width_per_m):
     """The object grown from surface ``seed``: the surfaces bordering it from behind join (smallest depth jump first)
     while the union fits the box — a cup's front wall and its inside beyond the rim are two surfaces of one object,
     while what stands in front of an object never joins it, and the wall behind makes the union too large.
 
-    A union fits when its radius stays within ``max_radius`` (the box's half diagonal in metres at the seed's depth),
-    or, for a seed nearer than the rest of its object (a bowl's front wall before its inside), within
-    ``diag_per_m`` × the union's median depth while it is no deeper than the box is wide there (``width_per_m`` ×
-    that depth): a gap to an object behind an occluder makes the union deeper than wide. Returns (members [P] bool,
+    A union fits when its radius stays within the box's half diagonal in metres at the seed's median depth
+    (``diag_per_m`` × that depth), or within it at the union's own median depth while the union is no deeper than the
+    box is wide there (``width_per_m`` × that depth). The second test lets a seed nearer than the rest of its object
+    (a bowl's front wall before its inside) grow; a gap to an object behind an occluder makes that union deeper than
+    wide. Returns (members [P] bool,
     [n_labels] median jump of each bordering surface left out, NaN elsewhere; < 0 = in front)."""
     keep = labels == seed
     depth = sorted_median(np.sort(z[keep]))                                     # the object's median depth (m)
+    max_radius = diag_per_m * depth                                             # the box's half diagonal at the seed
     for _ in range(32):                                                         # rounds of growth
         jumps = _boundary_jumps(labels, n_labels, z, cut_i, cut_j, keep)
         grown = False
@@ -428,9 +416,7 @@ def _choose_surface(z, rows, cols, box, labels, cut_i, cut_j, points, focal, min
     best_keep, best_jumps = labels == big[0], np.full(n_labels, np.nan)
     for k in range(len(big)):
         seg = big[k]
-        keep, jumps = _grow(seg, labels, n_labels, z, cut_i, cut_j, points,
-                            half_diag_px * sorted_median(np.sort(z[labels == seg])) / focal, half_diag_px / focal,
-                            2.0 * hw / focal)
+        keep, jumps = _grow(seg, labels, n_labels, z, cut_i, cut_j, points, half_diag_px / focal, 2.0 * hw / focal)
         n, offset2 = _centre_offset2(keep, rows, cols, cx, cy, hw, hh)
         c_lo, c_hi, r_lo, r_hi = cols.max(), cols.min(), rows.max(), rows.min()
         for p in range(P):

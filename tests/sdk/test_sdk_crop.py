@@ -367,9 +367,8 @@ def test_auto_masks_find_a_table_top_object_when_the_floor_dominates():
 
 
 def test_surface_percentile_by_selection_equals_the_sorted_one(rng):
-    from equipose.core.order_statistics import sorted_percentile
-    from equipose.preprocess.surfaces import _percentile
+    from equipose.core.order_statistics import selected_percentile, sorted_percentile
     for n in (1, 2, 3, 7, 50, 51, 997):
         v = rng.normal(size=n)
         for q in (0.0, 2.0, 50.0, 95.0, 98.0, 100.0):
-            assert _percentile(v.copy(), q) == sorted_percentile(np.sort(v), q), (n, q)
+            assert selected_percentile(v.copy(), q) == sorted_percentile(np.sort(v), q), (n, q)
