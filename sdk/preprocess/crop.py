@@ -20,7 +20,7 @@ from equipose.core.order_statistics import median
 from equipose.preprocess.plane import find_support_plane, plane_height_terms
 from equipose.preprocess.sampling import MIN_POINTS
 from equipose.preprocess.surfaces import (box_object_cluster, continues_beyond_box, nearest_depth_cluster,
-                                         occluded_fraction, surface_segments)
+                                         surface_segments)
 from equipose.preprocess.validate import check_box, check_intrinsics, check_mask, depth_to_metres
 
 __all__ = ["CropResult", "check_crop_options", "crop_points", "statistical_outlier_mask", "organized_outlier_mask",
@@ -293,7 +293,8 @@ def crop_points(depth, K, *, box=None, mask=None, depth_unit="mm", image_size=No
     subsampling to at most ``max_points`` → background rejection (default on for a box without a mask: the object
     the box is drawn around, ``box_object_cluster``, first among the depth clusters (background far behind, occluders
     well in front), then among the connected surfaces of that cluster on the pixel grid (``surface_segments``: an
-    occluder whose depths overlap the object's); what lies in front of it is reported as
+    occluder whose depths overlap the object's), where a surface of a nearer cluster joins only as a part of the
+    object grown into that cluster (a bowl's front wall before its inside); what lies in front of it is reported as
     ``diagnostics["occluded_fraction"]``) → statistical outlier removal (``outlier_std``; 0 disables): on the pixel grid with its 8
     neighbours (``organized_outlier_mask``) for the default ``outlier_k`` = 8, else k-d tree with k = ``outlier_k``.
     Raises ``DepthDtypeError``, ``DepthUnitError``, ``EmptyDepthError``, ``IntrinsicsError``, ``RegionError``,
@@ -368,16 +369,16 @@ def crop_points(depth, K, *, box=None, mask=None, depth_unit="mm", image_size=No
             beyond = continues_beyond_box(d, z, rows, cols, (x0, y0, x1, y1), max(s, 1), float(Kf[1, 1]))  # [P]
             keep, info = box_object_cluster(z, rows, cols, (x0, y0, x1, y1), beyond=beyond, step=max(s, 1))
             if s and keep.sum() >= min_points:                                  # lattice: then among its surfaces
-                sub = np.nonzero(keep)[0]                                       # [P1]
+                nearer = z < z[keep].min()                                      # [P] the depth clusters in front
+                sub = np.nonzero(keep | nearer)[0]                              # [P1] (a bowl's front wall may be one)
                 labels, cut = surface_segments(z[sub], rows[sub], cols[sub], s, float(Kf[1, 1]))
                 inner, info2 = box_object_cluster(z[sub], rows[sub], cols[sub], (x0, y0, x1, y1), labels=labels,
                                                   cut=cut, points=pts[sub], focal=float(Kf[1, 1]),
-                                                  beyond=beyond[sub], step=s)
+                                                  beyond=beyond[sub], step=s, nearer=nearer[sub])
                 keep = np.zeros(len(z), bool)
                 keep[sub[inner]] = True
-                front = info["front_points"] + info2["front_points"]
-                info = {"clusters": info["clusters"], "surfaces": info2["clusters"], "front_points": front,
-                        "occluded_fraction": occluded_fraction(front, keep)}
+                info = {"clusters": info["clusters"], "surfaces": info2["clusters"],
+                        "front_points": info2["front_points"], "occluded_fraction": info2["occluded_fraction"]}
             diag.update(info)
         else:
             keep = nearest_depth_cluster(z)                                     # [P]

@@ -199,7 +199,7 @@ def _cut_labels(labels, n_labels, rows, cols, box, step, beyond):
 def box_object_cluster(z: np.ndarray, rows: np.ndarray, cols: np.ndarray, box, min_fraction: float = 0.1,
                        border: float = 0.08, labels: np.ndarray | None = None, cut: tuple | None = None,
                        points: np.ndarray | None = None, focal: float | None = None,
-                       beyond: np.ndarray | None = None, step: int = 1) -> tuple:
+                       beyond: np.ndarray | None = None, step: int = 1, nearer: np.ndarray | None = None) -> tuple:
     """The object a box prompt is drawn around, chosen by evidence instead of nearness.
 
     Convention: ``z`` [P] metres, ``rows``, ``cols`` [P] frame pixels of the box's points; ``box`` (x0, y0, x1, y1)
@@ -216,9 +216,12 @@ def box_object_cluster(z: np.ndarray, rows: np.ndarray, cols: np.ndarray, box, m
     of it), × 0.3 when it still borders from in front a large surface that does not reach all four sides of the box
     (it hides another object: an occluder; background reaches every side). With ``beyond`` [P] bool
     (``continues_beyond_box``; ``step`` the lattice pitch), a candidate whose seed surface or cluster runs on past the
-    box's sides scores × ``CUT_PENALTY``: the box ends at its object.
+    box's sides scores × ``CUT_PENALTY``: the box ends at its object. ``nearer`` [P] bool (surfaces only): the points
+    of the depth clusters in front of the one the surfaces were cut from, passed with it so that a surface of the
+    object split off by a depth gap (a bowl's front wall before its inside) can join it.
     Returns ([P] bool, info {"clusters", "front_points", "occluded_fraction": front points / (those + the object's)}):
-    in front = the depth clusters nearer than the chosen one, or the surfaces bordering the grown object from in front.
+    in front = the depth clusters nearer than the chosen one, or the surfaces bordering the grown object from in front
+    and the ``nearer`` points left out.
     """
     P = len(z)
     if P == 0:
@@ -228,11 +231,12 @@ def box_object_cluster(z: np.ndarray, rows: np.ndarray, cols: np.ndarray, box, m
     bounds = np.array([float(b) for b in box])                                  # [4] x0, y0, x1, y1
     beyond = np.zeros(P, np.bool_) if beyond is None else np.ascontiguousarray(beyond, np.bool_)   # [P]
     if labels is not None and cut is not None and points is not None and focal:
+        nearer = np.zeros(P, np.bool_) if nearer is None else np.ascontiguousarray(nearer, np.bool_)   # [P]
         keep, n_big, front = _choose_surface(z, rows, cols, bounds, np.ascontiguousarray(labels, np.int64),
                                              np.ascontiguousarray(cut[0], np.int64),
                                              np.ascontiguousarray(cut[1], np.int64),
                                              np.ascontiguousarray(points, np.float64), float(focal),
-                                             float(min_fraction), float(border), beyond, int(step))
+                                             float(min_fraction), float(border), beyond, int(step), nearer)
     else:
         labels = depth_clusters(z) if labels is None else np.ascontiguousarray(labels, np.int64)
         keep, n_big, front = _choose_cluster(rows, cols, bounds, labels, float(min_fraction), float(border), beyond,
@@ -247,10 +251,10 @@ def occluded_fraction(front: int, kept: np.ndarray) -> float:
 
 
 @njit(cache=True)
-def _big_labels(labels, min_fraction):
-    """(counts [C], the labels holding ≥ ``min_fraction`` of the points, else the largest one)."""
+def _big_labels(labels, min_fraction, base):
+    """(counts [C], the labels holding ≥ ``min_fraction`` of ``base`` points, else the largest one)."""
     counts = np.bincount(labels)
-    big = np.nonzero(counts >= max(1.0, min_fraction * len(labels)))[0]
+    big = np.nonzero(counts >= max(1.0, min_fraction * base))[0]
     if len(big) == 0:
         big = np.array([np.argmax(counts)])
     return counts, big
@@ -292,7 +296,7 @@ def _centre_offset2(members, rows, cols, cx, cy, hw, hh):
 def _choose_cluster(rows, cols, box, labels, min_fraction, border, beyond, step):
     """Depth-cluster candidates: (keep [P] bool, number of candidates, points in nearer clusters)."""
     P = len(labels)
-    counts, big = _big_labels(labels, min_fraction)
+    counts, big = _big_labels(labels, min_fraction, P)
     cut = _cut_labels(labels, len(counts), rows, cols, box, step, beyond)       # [C] runs on past the box
     cx, cy, hw, hh = _box_frame(box)
     sides = _sides(rows, cols, box, border, hw, hh)
@@ -396,11 +400,20 @@ def _grow(seed, labels, n_labels, z, cut_i, cut_j, points, diag_per_m, width_per
 
 
 @njit(cache=True)
-def _choose_surface(z, rows, cols, box, labels, cut_i, cut_j, points, focal, min_fraction, border, beyond, step):
-    """Grown-surface candidates: (keep [P] bool, number of candidates, points of the surfaces bordering it in front)."""
+def _choose_surface(z, rows, cols, box, labels, cut_i, cut_j, points, focal, min_fraction, border, beyond, step,
+                    nearer):
+    """Grown-surface candidates: (keep [P] bool, number of candidates, points in front: of the surfaces bordering it
+    from in front, and the ``nearer`` [P] points left out that are not among those). A surface of the ``nearer``
+    clusters seeds a candidate only where it grows into at least half of the cluster behind (a bowl's front wall into
+    its inside); alone it is what stands in front."""
     P = len(z)
-    counts, big = _big_labels(labels, SEED_SHARE * min_fraction)
+    base = P - np.count_nonzero(nearer)                                         # the shares refer to the cluster cut
+    counts, big = _big_labels(labels, SEED_SHARE * min_fraction, base)
     n_labels = len(counts)
+    in_front = np.zeros(n_labels, np.bool_)                                     # a surface of the nearer clusters
+    for p in range(P):
+        if nearer[p]:
+            in_front[labels[p]] = True
     runs_on = _cut_labels(labels, n_labels, rows, cols, box, step, beyond)     # [n_labels] runs on past the box
     cx, cy, hw, hh = _box_frame(box)
     sides = _sides(rows, cols, box, border, hw, hh)
@@ -414,9 +427,15 @@ def _choose_surface(z, rows, cols, box, labels, cut_i, cut_j, points, focal, min
     half_diag_px = 0.5 * math.hypot(box[2] - box[0], box[3] - box[1])
     best_score = -np.inf
     best_keep, best_jumps = labels == big[0], np.full(n_labels, np.nan)
+    if in_front[big[0]]:                                    # no candidate at all: the cluster cut, never what's in front
+        best_keep = ~nearer
+    candidates = 0
     for k in range(len(big)):
         seg = big[k]
         keep, jumps = _grow(seg, labels, n_labels, z, cut_i, cut_j, points, half_diag_px / focal, 2.0 * hw / focal)
+        if in_front[seg] and np.count_nonzero(keep & ~nearer) < 0.5 * base:
+            continue                                        # seeded in front: only as a part of the cluster behind
+        candidates += 1
         n, offset2 = _centre_offset2(keep, rows, cols, cx, cy, hw, hh)
         c_lo, c_hi, r_lo, r_hi = cols.max(), cols.min(), rows.max(), rows.min()
         for p in range(P):
@@ -426,7 +445,7 @@ def _choose_surface(z, rows, cols, box, labels, cut_i, cut_j, points, focal, min
         span = (c_hi - c_lo + 1) / (2 * hw) * (r_hi - r_lo + 1) / (2 * hh)
         hides = False                                       # a large surface behind it, not background all round
         for other in range(n_labels):
-            if jumps[other] > 0 and counts[other] >= min_fraction * P and not enclosing[other]:
+            if jumps[other] > 0 and counts[other] >= min_fraction * base and not enclosing[other]:
                 hides = True
         fit = min(span, 1.0) * (0.3 if hides else 1.0) * (CUT_PENALTY if runs_on[seg] else 1.0)
         score = n / P * fit * np.exp(-2.0 * offset2)
@@ -436,4 +455,7 @@ def _choose_surface(z, rows, cols, box, labels, cut_i, cut_j, points, focal, min
     for other in range(n_labels):
         if best_jumps[other] < 0.0:
             front += counts[other]
-    return best_keep, len(big), front
+    for p in range(P):
+        if nearer[p] and not best_keep[p] and not best_jumps[labels[p]] < 0.0:
+            front += 1
+    return best_keep, candidates, front
