@@ -15,12 +15,16 @@ first, then the midpoints.
 from __future__ import annotations
 
 import numpy as np
+from numba import njit
 from scipy.spatial import cKDTree
 
 from equipose.core.errors import ConfigError, InvalidPointsError
 from equipose.core.metadata import MAX_DENSIFY
 
-__all__ = ["densify_template", "MAX_DENSIFY"]
+__all__ = ["densify_template", "MAX_DENSIFY", "BRUTE_MAX_TEMPLATE"]
+
+BRUTE_MAX_TEMPLATE = 1024   # templates up to this many points find their neighbours by brute force (compiled; a
+                            # 256-point template in tens of µs, where building and querying a k-d tree takes ~0.3 ms)
 
 
 def densify_template(points: np.ndarray, k: int) -> np.ndarray:
@@ -34,10 +38,57 @@ def densify_template(points: np.ndarray, k: int) -> np.ndarray:
     if k == 0 or len(Y) < 2:
         return Y
     k = min(int(k), len(Y) - 1)
-    _, nn = cKDTree(Y).query(Y, k + 1)                                          # [M, k+1], column 0: the point
-    i = np.repeat(np.arange(len(Y)), k)                                         # [M·k]
-    j = nn[:, 1:].reshape(-1)                                                   # [M·k]
-    key = np.unique(np.minimum(i, j) * len(Y) + np.maximum(i, j))             # [D] each pair once, (low, high) order
-    low, high = np.divmod(key, len(Y))                                          # [D], [D]
-    keep = low != high                                                          # duplicate points: no midpoint
-    return np.concatenate([Y, (Y[low[keep]] + Y[high[keep]]) / 2])            # [M + D, 3]
+    if len(Y) <= BRUTE_MAX_TEMPLATE:
+        Y = np.ascontiguousarray(Y)
+        low, high = _neighbour_pairs(Y, k)                                      # [D], [D]
+    else:
+        _, nn = cKDTree(Y).query(Y, k + 1)                                      # [M, k+1], column 0: the point
+        i = np.repeat(np.arange(len(Y)), k)                                     # [M·k]
+        j = nn[:, 1:].reshape(-1)                                               # [M·k]
+        key = np.unique(np.minimum(i, j) * len(Y) + np.maximum(i, j))         # [D] each pair once, (low, high) order
+        low, high = np.divmod(key, len(Y))                                      # [D], [D]
+        keep = low != high                                                      # duplicate points: no midpoint
+        low, high = low[keep], high[keep]
+    return np.concatenate([Y, (Y[low] + Y[high]) / 2])                         # [M + D, 3]
+
+
+@njit(cache=True, nogil=True)
+def _neighbour_pairs(Y, k):
+    """(low [D], high [D]): every pair (low < high) in which one point is among the other's ``k`` nearest (squared
+    distance, ties to the lower index), each once, in (low, high) order."""
+    M = len(Y)
+    pair = np.zeros((M, M), np.bool_)
+    best_d = np.empty(k)
+    best_j = np.empty(k, np.int64)
+    xs, ys, zs = Y[:, 0].copy(), Y[:, 1].copy(), Y[:, 2].copy()                 # [M] each: the row below vectorises
+    row = np.empty(M)
+    for i in range(M):
+        for j in range(M):                                                      # squared distances from point i
+            dx, dy, dz = xs[j] - xs[i], ys[j] - ys[i], zs[j] - zs[i]
+            row[j] = dx * dx + dy * dy + dz * dz
+        n = 0                                                                   # kept so far, sorted by distance
+        for j in range(M):
+            d = row[j]
+            if j == i or (n == k and d >= best_d[k - 1]):
+                continue
+            p = n if n < k else k - 1                                           # insert, dropping the farthest
+            while p > 0 and best_d[p - 1] > d:
+                best_d[p], best_j[p] = best_d[p - 1], best_j[p - 1]
+                p -= 1
+            best_d[p], best_j[p] = d, j
+            n = min(n + 1, k)
+        for m in range(n):
+            j = best_j[m]
+            pair[min(i, j), max(i, j)] = True
+    D = 0
+    for a in range(M):
+        for b in range(a + 1, M):
+            D += pair[a, b]
+    low, high = np.empty(D, np.int64), np.empty(D, np.int64)
+    D = 0
+    for a in range(M):
+        for b in range(a + 1, M):
+            if pair[a, b]:
+                low[D], high[D] = a, b
+                D += 1
+    return low, high

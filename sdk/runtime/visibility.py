@@ -26,6 +26,7 @@ from scipy.spatial import QhullError
 from equipose.core.errors import InvalidPointsError
 from equipose.core.hull import hull_vertex_mask
 from equipose.core.neighbours import NearestNeighbours
+from equipose.core.parallel import run_parts, split_ranges, workers
 
 __all__ = ["visible_mask", "view_residuals", "view_rescore", "DEFAULT_EXPONENT", "INCUMBENT_MARGIN", "VIEW_AMBIGUOUS_MARGIN",
            "COPY_SUPPORT_WEIGHT"]
@@ -104,13 +105,21 @@ def view_residuals(observed: np.ndarray, template: np.ndarray, rotations: np.nda
     if not len(R):
         return np.empty(0)
     in_template = np.stack([(x - t[j]) @ R[j] for j in range(len(R))])        # [J, N, 3] observed, template frame
-    posed = [Y @ R[j].T + t[j] for j in range(len(R))]                         # [M, 3] each = R y + t
-    seen = [p[visible_mask(p, viewpoint, exponent)] for p in posed]             # [V_j, 3] what the camera sees
+    parts = run_parts(_seen, [(Y, R[a:b], t[a:b], viewpoint, exponent)          # the poses in parts, side by side
+                              for a, b in split_ranges(len(R), workers())])
+    seen = [v for part in parts for v in part]                                  # [V_j, 3] each
     d_obs, _ = NearestNeighbours(Y).query(in_template)                          # [J, N] observed → template
     d_seen, _ = NearestNeighbours(x).query(np.concatenate(seen))                # [ΣV] visible template → observed
     ends = np.cumsum([len(p) for p in seen])[:-1]
     return np.array([float(np.mean(a ** 2) + np.mean(b ** 2))                   # [J], one query per direction
                      for a, b in zip(d_obs, np.split(d_seen, ends))])
+
+
+def _seen(Y, R, t, viewpoint, exponent) -> list:
+    """[V_j, 3] for each pose j of ``R`` [J, 3, 3], ``t`` [J, 3]: the points of the posed template ``Y`` [M, 3] (R y
+    + t) that a camera at ``viewpoint`` sees."""
+    posed = [Y @ R[j].T + t[j] for j in range(len(R))]                         # [M, 3] each
+    return [p[visible_mask(p, viewpoint, exponent)] for p in posed]
 
 
 def view_rescore(prep, template: np.ndarray, rotations: np.ndarray, translations: np.ndarray, scores: np.ndarray, *,

@@ -44,6 +44,17 @@ def test_densify_midpoints_in_pair_order():
     dense = densify_template(y, 3)
     assert np.array_equal(dense[:64], y) and np.array_equal(dense[64:], expected)
 
+@pytest.mark.parametrize("size, k", [(7, 2), (256, 4), (300, 16)])
+def test_densify_brute_force_matches_the_tree(monkeypatch, size, k):
+    """Templates up to BRUTE_MAX_TEMPLATE points find their neighbours by compiled brute force; the k-d tree that
+    larger ones use gives the same template, point for point."""
+    import equipose.runtime.template as template
+    y = np.random.default_rng(size).normal(size=(size, 3)).astype(np.float32)
+    brute = densify_template(y, k)
+    monkeypatch.setattr(template, "BRUTE_MAX_TEMPLATE", 0)
+    assert np.array_equal(brute, densify_template(y, k))
+
+
 def test_densify_rejects_bad_input():
     for bad in (np.zeros((4, 2)), np.zeros(3)):
         with pytest.raises(InvalidPointsError):
