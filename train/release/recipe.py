@@ -82,6 +82,7 @@ class Recipe:
     frame_priors: str | None = None
     eval_mode: str = ""
     eval_icp_samples: int = 100
+    centre_views: int | None = None
 
 
 def _text(v):
@@ -147,6 +148,7 @@ SCHEMA = {
     ("turn_classifier", "student_max_deg"): ("turn_student_max_deg", _float(0, 180, open_lo=True), "degrees"),
     ("eval", "mode"): ("eval_mode", _mode, '"complete" or "partial"'),
     ("eval", "icp_samples"): ("eval_icp_samples", _int(1), "an integer ≥ 1"),
+    ("centre", "views"): ("centre_views", _int(1), "rendered training views, an integer ≥ 1"),
 }
 TABLES = sorted({t for t, _ in SCHEMA if t})
 
@@ -181,7 +183,8 @@ def _flatten(data: dict, source: str) -> dict:
 
 def _check_combinations(r: Recipe, source: str) -> None:
     partial_only = {"[refine] visibility": r.refine_visibility is not None,
-                    "[turn_classifier]": bool(r.turn_state or r.turn_copy_from)}
+                    "[turn_classifier]": bool(r.turn_state or r.turn_copy_from),
+                    "[centre]": r.centre_views is not None}
     complete_only = {"rest_facet": r.rest_facet is not None, "frame_priors": r.frame_priors is not None}
     for what, used in partial_only.items():
         if used and r.mode != "partial":

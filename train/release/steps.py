@@ -106,6 +106,9 @@ def _file_steps(r: Recipe, f: str, views: int, skip_eval: bool) -> list:
     if r.frame_priors is not None:
         steps.append(_python("equipose.export.frame_priors", "--model", model, "--category", r.category,
                              "--steps", r.frame_priors, title=f"{f}: frame priors ({r.frame_priors})"))
+    if r.centre_views and f == r.name:              # before the confidence fit: the offset decides which are right
+        steps.append(_python("equipose.train.evaluation.centre", "--model", model, "--views", r.centre_views,
+                             "--write", title=f"{f} (and its int8 copy): the centre's depth offset"))
     if f == r.name:                                                            # also written into the int8 file
         steps.append(_python("equipose.train.evaluation.confidence", "--model", model, "--views", CONFIDENCE_VIEWS,
                              "--write", title=f"{f} (and its int8 copy): calibrated confidence"))
