@@ -2,7 +2,7 @@
 calibrated depth offset.
 
 A single view shows the front of an object only. Fitting it places the centre of a partial view a few millimetres
-nearer to the camera than it is, by about the same amount view after view (rendered cups and mugs: 8–10 mm, bowls
+nearer to the camera than it is, by about the same amount view after view (rendered cups and mugs: 7–10 mm, bowls
 4–5 mm; docs/results/real/README.md, v0.40). ``centre_calibration`` JSON {"along_ray_m": b, ...} holds that offset,
 fitted on rendered training views (``equipose.train.evaluation.centre``); this stage adds it along the ray from the
 camera through the object's centre. It runs after ``confidence``, whose evidence reads the fitted pose.
