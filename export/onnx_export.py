@@ -36,7 +36,7 @@ from equipose.models.model_io import read_model_file, write_model_file
 from equipose.runtime.session import GRAPH_OUTPUTS as OUTPUT_NAMES, INPUT_NAME, SCORES, GraphIO
 
 __all__ = ["DEFAULT_OPSET", "OUTPUT_NAMES", "INPUT_NAME", "export_model", "export_random_model", "export_checkpoint",
-           "update_metadata", "upgrade_model_file", "calibration_arrays", "op_type_counts"]
+           "update_metadata", "update_metadata_with_int8", "upgrade_model_file", "calibration_arrays", "op_type_counts"]
 
 DEFAULT_OPSET = 20
 MAX_BATCH = 4096          # upper bound declared for the dynamic batch dimension
@@ -395,3 +395,15 @@ def update_metadata(path, **values) -> pathlib.Path:
         proto.metadata_props.add(key=k, value=v)
     write_model_file(proto, target)
     return quantize_int8(target, path) if target != path else path
+
+
+def update_metadata_with_int8(path, **values) -> pathlib.Path:
+    """``update_metadata`` of an fp32 model file, and of its ``.int8`` sibling where that is a stand-alone file (an
+    int8 copy built from the fp32 file inherits the entries when it is rebuilt)."""
+    from equipose.models.int8 import int8_path_for, is_derived_int8
+
+    out = update_metadata(path, **values)
+    sibling = int8_path_for(path)
+    if sibling.is_file() and not is_derived_int8(sibling):
+        update_metadata(sibling, **values)
+    return out

@@ -53,3 +53,17 @@ def test_fit_offset_minimises_the_mean_centre_error():
     assert 0.0065 < offset < 0.0095                                              # undoes the 8 mm bias
     s = summarize_centres(rows, offset)["all"]
     assert s["offset_error_mean_m"] < s["error_mean_m"] and s["along_median_m"] < -0.006
+
+
+def test_a_written_offset_reaches_the_file_and_its_int8_copy(tiny_model, tmp_path):
+    """``update_metadata_with_int8`` (what ``--write`` calls): the fp32 file gets the entry, and the int8 copy built
+    from it runs the stage too."""
+    import shutil
+    from equipose.export.onnx_export import update_metadata_with_int8
+    from equipose.models.int8 import ensure_int8
+    path = tmp_path / "m.onnx"
+    shutil.copy(tiny_model, path)
+    update_metadata_with_int8(path, centre_calibration={"along_ray_m": 0.006, "fitted_on": "test"})
+    assert PoseEstimator(str(path), threads=1).pipeline_info[-1] == {"stage": "centre", "offset_m": 0.006}
+    int8 = ensure_int8(path)
+    assert PoseEstimator(str(int8), threads=1).pipeline_info[-1] == {"stage": "centre", "offset_m": 0.006}

@@ -138,12 +138,8 @@ def main(argv=None) -> int:
         pathlib.Path(a.json).write_text(json.dumps({"calibration": meta if a.split == "train" else None,
                                                     "summary": summary, "rows": rows}, indent=1))
     if a.write:
-        from equipose.export.onnx_export import update_metadata
-        from equipose.models.int8 import int8_path_for, is_derived_int8
-        update_metadata(a.model, centre_calibration=meta)          # an int8 copy built from it inherits the entry
-        sibling = int8_path_for(a.model)
-        if sibling.is_file() and not is_derived_int8(sibling):
-            update_metadata(sibling, centre_calibration=meta)
+        from equipose.export.onnx_export import update_metadata_with_int8
+        update_metadata_with_int8(a.model, centre_calibration=meta)   # and a stand-alone int8 sibling
     return 0
 
 

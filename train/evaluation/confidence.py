@@ -407,12 +407,8 @@ def main(argv=None) -> int:
     if a.plot:
         plot_reliability(summary, a.plot, pathlib.Path(a.model).stem)
     if a.write:
-        from equipose.export.onnx_export import update_metadata
-        from equipose.models.int8 import int8_path_for, is_derived_int8
-        update_metadata(a.model, confidence_calibration=meta)       # an int8 copy built from it inherits the entry
-        sibling = int8_path_for(a.model)
-        if sibling.is_file() and not is_derived_int8(sibling):
-            update_metadata(sibling, confidence_calibration=meta)
+        from equipose.export.onnx_export import update_metadata_with_int8
+        update_metadata_with_int8(a.model, confidence_calibration=meta)   # and a stand-alone int8 sibling
     return 0
 
 
