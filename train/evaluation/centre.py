@@ -33,8 +33,9 @@ UPS = (None, "plane")
 
 
 def collect_centres(est, views: int, seed: int, split: str = "train", data_root=None, progress: bool = True) -> list:
-    """Rows {"view", "prompt", "up", "along" (m), "across" (m), "error" (m)} of ``est`` on ``views`` rendered views of
-    the ``split`` shapes of its tabletop category (the point-cloud shapes; cans lie on every ``LYING_EVERY``-th)."""
+    """Rows {"view", "prompt", "up", "along" (m), "across" (m), "error" (m), "distance" (m, camera to the true centre),
+    "occluded" (the hidden share)} of ``est`` on ``views`` rendered views of the ``split`` shapes of its tabletop
+    category (the point-cloud shapes; cans lie on every ``LYING_EVERY``-th)."""
     from tqdm import tqdm
 
     from equipose.train.data.modelnet import default_data_root
@@ -64,7 +65,8 @@ def collect_centres(est, views: int, seed: int, split: str = "train", data_root=
                 e = np.asarray(r.translation, np.float64) - view.t             # [3] m
                 along = float(e @ ray)
                 rows.append({"view": v, "prompt": prompt, "up": up or "none", "along": along,
-                             "across": float(np.linalg.norm(e - along * ray)), "error": float(np.linalg.norm(e))})
+                             "across": float(np.linalg.norm(e - along * ray)), "error": float(np.linalg.norm(e)),
+                             "distance": float(np.linalg.norm(view.t)), "occluded": float(view.occluded)})
     return rows
 
 
