@@ -119,6 +119,8 @@ def main(argv=None) -> int:
     from equipose import PoseEstimator
     if a.write and a.split != "train":
         raise ConfigError("--write fits on the training shapes: leave --split at train")
+    if a.offset is not None and a.split == "train":
+        raise ConfigError("--offset measures a file on --split test; the fit on training views runs with the stage off")
     offset = 0.0 if a.split == "train" else a.offset
     est = PoseEstimator(a.model, stages=None if offset is None else {"centre": {"offset": offset}})
     rows = collect_centres(est, a.views, a.seed, a.split, a.data_root)
