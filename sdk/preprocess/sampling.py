@@ -46,6 +46,11 @@ class PreparedPoints:
         """[..., 3] model units → [..., 3] metres, camera frame."""
         return np.asarray(x_model, np.float64) * self.scale + self.centre_m
 
+    @property
+    def camera(self) -> np.ndarray:
+        """[3] float64 model units: where the camera sits in the centred frame of ``model_points`` (−centre_m / scale)."""
+        return -np.asarray(self.centre_m, np.float64) / float(self.scale)
+
 
 def check_spread(points_model: np.ndarray, centre_m: np.ndarray, scale: float) -> None:
     """Refuse degenerate or wrongly scaled object points.

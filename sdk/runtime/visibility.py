@@ -151,8 +151,7 @@ def view_rescore(prep, template: np.ndarray, rotations: np.ndarray, translations
         else:
             heads.append(int(i))
             near_head[int(i)] = symmetric_distance_deg(R[i], R[order], symmetry) <= merge_deg   # [k]
-    viewpoint = -np.asarray(prep.centre_m, np.float64) / float(prep.scale)
-    v = view_residuals(prep.model_points, template, R[heads], t[heads], viewpoint, exponent)   # [H]
+    v = view_residuals(prep.model_points, template, R[heads], t[heads], prep.camera, exponent)   # [H]
     v[0] *= 1.0 - float(margin)                                                 # the incumbent's benefit of doubt
     if copy_poses is not None:                                                  # the copies' vote
         C = np.asarray(copy_poses, np.float64)                                  # [K, 3, 3]

@@ -1,11 +1,11 @@
 """View-aware re-scoring (equipose.runtime.visibility) and PoseEstimator(visibility=...)."""
-import types
 
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
 from equipose.errors import ConfigError, InvalidPointsError
+from equipose.preprocess.sampling import PreparedPoints
 from equipose.runtime.visibility import view_rescore, view_residuals, visible_mask
 
 
@@ -58,7 +58,7 @@ def test_view_residual_charges_visible_template_parts_the_view_lacks():
 def test_view_rescore_ranks_distinct_poses_and_keeps_groups_together():
     T, obs, R, t = _box_scene()
     centre = obs.mean(0)
-    prep = types.SimpleNamespace(model_points=obs - centre, centre_m=centre, scale=1.0)   # centred, camera at −centre
+    prep = PreparedPoints(model_points=obs - centre, centre_m=centre, scale=1.0, order=np.arange(len(obs)))   # centred
     near = Rotation.from_euler("z", 4, degrees=True).as_matrix() @ R[1]      # a near-duplicate of the wrong pose
     Rs = np.stack([R[1], near, R[0], np.eye(3)])
     ts = np.stack([t[1], t[1], t[0], t[0]]) - centre
@@ -74,7 +74,8 @@ def test_view_rescore_ranks_distinct_poses_and_keeps_groups_together():
     votes = np.stack([R[1]] * 7 + [R[0]])                                    # 7 of 8 copies found the wrong pose
     out = view_rescore(prep, T, Rs[[2, 0]], ts[[2, 0]], np.array([1.0, 2.0]), k=2, copy_poses=votes)
     assert np.argmin(out) == 0                                               # the view still decides at weight 0.8 …
-    off = types.SimpleNamespace(model_points=prep.model_points + [0.0, 0.0, 0.02], centre_m=centre, scale=1.0)
+    off = PreparedPoints(model_points=prep.model_points + [0.0, 0.0, 0.02], centre_m=centre, scale=1.0,
+                         order=prep.order)
     out = view_rescore(off, T, Rs[[2, 0]], ts[[2, 0]], np.array([1.0, 2.0]), k=2, copy_poses=votes[:7],
                        support_weight=1.0)                                   # (the right pose's residual now > 0)
     assert np.argmin(out) == 1                                               # … a unanimous vote at weight 1 overrides it

@@ -24,7 +24,7 @@ import numpy as np
 
 from equipose.core.errors import ConfigError, EquiposeError
 from equipose.runtime.stages.centre import MAX_OFFSET_M
-from equipose.train.evaluation.confidence import LYING_EVERY, RIGHT_M
+from equipose.train.evaluation.confidence import RIGHT_M, occluded_views
 
 __all__ = ["collect_centres", "fit_offset", "summarize_centres", "main"]
 
@@ -36,24 +36,16 @@ def collect_centres(est, views: int, seed: int, split: str = "train", data_root=
     """Rows {"view", "prompt", "up", "along" (m), "across" (m), "error" (m), "distance" (m, camera to the true centre),
     "occluded" (the hidden share)} of ``est`` on ``views`` rendered views of the ``split`` shapes of its tabletop
     category (the point-cloud shapes; cans lie on every ``LYING_EVERY``-th)."""
-    from tqdm import tqdm
-
     from equipose.train.data.modelnet import default_data_root
-    from equipose.train.data.occluded import render_occluded
     from equipose.train.data.tabletop import TABLETOP, tabletop_sources
     if est.category not in TABLETOP:
         raise ConfigError(f"centre calibration renders tabletop scenes; {est.category!r} is not one of "
                           f"{', '.join(TABLETOP)}")
     sources = [s for s in tabletop_sources(data_root or default_data_root(), est.category, split)
                if "points" in s[1]]                                            # [(name, surfels, points)]
-    lying = est.metadata.get("shape_prior") == "cylinder"
-    on_side = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])  # 90° about x: the axis horizontal
     rows = []
-    for v in tqdm(range(views), desc=f"centre {est.category}", disable=not progress):
-        rest = on_side if lying and v % LYING_EVERY == LYING_EVERY - 1 else None
-        view = render_occluded(sources[v % len(sources)][1], np.random.default_rng([seed, v]), rest=rest)
-        if view is None:
-            continue
+    for v, _, view, _ in occluded_views(sources, views, seed, est.metadata.get("shape_prior") == "cylinder",
+                                        desc=f"centre {est.category}", progress=progress):
         ray = view.t / np.linalg.norm(view.t)                                  # [3] camera → true centre
         for prompt in PROMPTS:
             region = {"box": view.box} if prompt == "box" else {"mask": view.mask}

@@ -32,7 +32,7 @@ from equipose.core.metadata import CONFIDENCE_FEATURES
 from equipose.eval.metrics import auroc
 from equipose.runtime.stages.confidence import below_runner_up, logistic
 
-__all__ = ["RIGHT_DEG", "RIGHT_M", "RIGHT_DIAG", "collect", "collect_modelnet", "fit_logistic", "auroc", "reliability", "summarize", "main"]
+__all__ = ["RIGHT_DEG", "RIGHT_M", "RIGHT_DIAG", "collect", "occluded_views", "collect_modelnet", "fit_logistic", "auroc", "reliability", "summarize", "main"]
 
 RIGHT_DEG = 10.0        # a right pose: rotation error ≤ this (modulo symmetry) ...
 RIGHT_M = 0.02          # ... and centre error ≤ this (metres)
@@ -60,11 +60,8 @@ def collect(model, views: int, seed: int = 0, data_root=None, progress: bool = T
     test shapes of the model's tabletop category. Cylinders (``shape_prior`` "cylinder": cans) also rest on their
     side: every ``LYING_EVERY``-th view lies (``"rest"``: "lying", else "standing"), since a fallen can is as
     common on a table as a standing one."""
-    from tqdm import tqdm
-
     from equipose import PoseEstimator
     from equipose.eval.metrics import rotation_errors
-    from equipose.train.data.occluded import render_occluded
     from equipose.train.data.tabletop import TABLETOP, tabletop_sources
     from equipose.train.data.modelnet import default_data_root
 
@@ -79,15 +76,9 @@ def collect(model, views: int, seed: int = 0, data_root=None, progress: bool = T
     if handle is not None:                                                     # each shape's own handle points
         from equipose.core.handles import handle_zone_mask
         parts = [handle_zone_mask(src[1]["points"], src[1]["points"], handle) for src in sources]
-    lying = est.metadata.get("shape_prior") == "cylinder"
-    on_side = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])  # 90° about x: the axis horizontal
     rows = []
-    for v in tqdm(range(views), desc=f"confidence {est.category}", disable=not progress):
-        s = v % len(sources)
-        rest = on_side if lying and v % LYING_EVERY == LYING_EVERY - 1 else None
-        view = render_occluded(sources[s][1], np.random.default_rng([seed, v]), part=parts[s], rest=rest)
-        if view is None:
-            continue
+    for v, s, view, lies in occluded_views(sources, views, seed, est.metadata.get("shape_prior") == "cylinder", parts,
+                                           desc=f"confidence {est.category}", progress=progress):
         for prompt in ("box", "mask"):
             region = {"box": view.box} if prompt == "box" else {"mask": view.mask}
             for up in (None, "plane"):
@@ -101,7 +92,7 @@ def collect(model, views: int, seed: int = 0, data_root=None, progress: bool = T
                 centre = float(np.linalg.norm(r.translation - view.t))
                 axis = float(rotation_errors(r.rotation[None], view.R[None], "continuous:z", unsigned_axis=unsigned)[0])
                 rows.append({"shape": s, "view": v, "prompt": prompt, "up": up or "none",
-                             "rest": "standing" if rest is None else "lying", "rot_err": rot, "axis_err": axis,
+                             "rest": "lying" if lies else "standing", "rot_err": rot, "axis_err": axis,
                              "centre_err": centre, "right": bool(rot <= RIGHT_DEG and centre <= RIGHT_M),
                              "confidence": float(r.confidence), "ambiguous": bool(r.ambiguous),
                              "occluded": float(view.occluded), "ms": ms, **r.extras["evidence"]})
@@ -109,6 +100,26 @@ def collect(model, views: int, seed: int = 0, data_root=None, progress: bool = T
                     rows[-1].update(handle_truth_px=view.part_pixels, handle_visible=bool(r.handle_visible),
                                     handle_points=int(r.handle_points))
     return rows
+
+
+def occluded_views(sources: list, views: int, seed: int, lying: bool, parts: list | None = None, desc: str = "",
+                   progress: bool = True):
+    """Yield (view index v, source index s, ``OccludedView``, whether it lies) for v in 0..``views``−1: source v mod len(sources)
+    (``tabletop_sources`` entries; ``parts`` [its part points or None] per source) rendered behind an occluder with
+    the generator seeded [``seed``, v]; with ``lying`` (cylinders) every ``LYING_EVERY``-th view lies on its side.
+    Views that ``render_occluded`` cannot make are skipped."""
+    from tqdm import tqdm
+
+    from equipose.train.data.occluded import render_occluded
+    on_side = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])  # 90° about x: the axis horizontal
+    parts = [None] * len(sources) if parts is None else parts
+    for v in tqdm(range(views), desc=desc, disable=not progress):
+        s = v % len(sources)
+        lies = lying and v % LYING_EVERY == LYING_EVERY - 1
+        view = render_occluded(sources[s][1], np.random.default_rng([seed, v]), part=parts[s],
+                               rest=on_side if lies else None)
+        if view is not None:
+            yield v, s, view, lies
 
 
 def collect_modelnet(model, data_root=None, cache_dir=None, limit: int | None = None, progress: bool = True) -> list:

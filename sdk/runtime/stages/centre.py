@@ -72,8 +72,7 @@ class CentreStage(Stage):
         if state.translation is None:                                           # no pose chosen
             return
         scale = float(state.prep.scale)                                         # metres per model unit
-        camera = -np.asarray(state.prep.centre_m, np.float64) / scale           # [3] model units
-        ray = state.translation - camera                                        # [3] camera → object centre
+        ray = state.translation - state.prep.camera                             # [3] camera → object centre
         norm = float(np.linalg.norm(ray))
         if norm > 0.0:
             state.set_pose(state.rotation, state.translation + (self.offset_m / scale) * ray / norm)
