@@ -2,12 +2,13 @@
 the pose the mask gives?
 
 Usage: python tools/bench/box_vs_mask.py [--models can-tabletop cup-tabletop bowl-tabletop] [--data DIR]
-    [--profile default] [--json FILE]
+    [--profile default] [--up none|plane] [--json FILE]
 For every labelled object (``label // 10``, labels ≥ 20) of every ``learn*.pcd``: ``predict(mask=its pixels)`` and
 ``predict(box=the mask's bounding box)`` with the same estimator; prints per model the angle between the two poses'
 axes (symmetry axis, or the rotation's z column), the distance between their centres, the share of objects whose box
 pose is > 10° or > 2 cm off the mask pose, and how many box crops reported something in front (``occlusion``).
-Angles in degrees (sign-folded: an axis and its negative are the same), distances in millimetres.
+Angles in degrees (sign-folded: an axis and its negative are the same), distances in millimetres. ``--up``: the up
+prior of both predictions (default none, which compares the two crops alone; "plane": the frame's support plane).
 """
 from __future__ import annotations
 
@@ -48,6 +49,7 @@ def main(argv=None) -> int:
     ap.add_argument("--models", nargs="+", default=["can-tabletop", "cup-tabletop", "bowl-tabletop"])
     ap.add_argument("--data", default=str(root / "kinect_pcl_objects" / "mOSD_learn_cylindric"))
     ap.add_argument("--profile", default="default")
+    ap.add_argument("--up", choices=("none", "plane"), default="none", help="the up prior of both predictions")
     ap.add_argument("--json", help="write per-object rows here")
     a = ap.parse_args(argv)
     scenes = sorted(pathlib.Path(a.data).glob("learn*.pcd"))
@@ -64,8 +66,9 @@ def main(argv=None) -> int:
         for name, cloud in clouds.items():
             for oid, mask, box in objects(cloud):
                 try:
-                    rm = est.predict(cloud["depth"], cloud["K"], mask=mask)
-                    rb = est.predict(cloud["depth"], cloud["K"], box=box)
+                    up = None if a.up == "none" else a.up
+                    rm = est.predict(cloud["depth"], cloud["K"], mask=mask, up=up)
+                    rb = est.predict(cloud["depth"], cloud["K"], box=box, up=up)
                 except EquiposeError as e:
                     rows.append({"model": model, "scene": name, "object": oid, "error": type(e).__name__})
                     continue

@@ -1,10 +1,11 @@
 """Calibrated confidence on the labelled real Kinect scenes of mOSD (learn33–44), box and mask prompts, no up prior.
 
 Usage: python tools/bench/real_confidence.py [--data DIR] [--assign mosd_categories.json] [--profile default]
-    [--json FILE]
+    [--up none|plane] [--json FILE]
 Every labelled object that ``mosd_categories.json`` assigns to cup, bowl or can runs through its category's model
 (``cup-tabletop``, ``bowl-tabletop``, ``can-tabletop``) twice: ``predict(mask=its pixels)`` and
-``predict(box=the mask's bounding box)``, with ``up=None``. The scenes give no 6D ground truth, so the check is the
+``predict(box=the mask's bounding box)``, with ``up=None`` (``--up plane``: the up prior from the frame's support
+plane). The scenes give no 6D ground truth, so the check is the
 axis against the table (labels 1–9, its plane fitted by ``equipose.eval.realdata.table_plane``):
 - ``tilt``: the signed angle between the result's axis (symmetry axis, else rotation z) and the table normal,
   0 = upright, 180 = upside down (a can's axis is unsigned, so its tilt is folded to 0–90);
@@ -47,6 +48,7 @@ def main(argv=None) -> int:
     ap.add_argument("--data", default=str(root / "kinect_pcl_objects" / "mOSD_learn_cylindric"))
     ap.add_argument("--assign", default=str(repo / "docs" / "results" / "real" / "mosd_categories.json"))
     ap.add_argument("--profile", default="default")
+    ap.add_argument("--up", choices=("none", "plane"), default="none", help="the up prior of every prediction")
     ap.add_argument("--json", help="write per-object rows here")
     a = ap.parse_args(argv)
     assign = json.loads(pathlib.Path(a.assign).read_text())
@@ -69,7 +71,7 @@ def main(argv=None) -> int:
             rest = 90.0 if oid in lying.get(scene.name, []) else 0.0
             for prompt, region in (("mask", {"mask": mask}), ("box", {"box": mask_box(mask)})):
                 try:
-                    r = est.predict(scene.depth, scene.K, depth_unit="mm", **region)
+                    r = est.predict(scene.depth, scene.K, depth_unit="mm", up=None if a.up == "none" else a.up, **region)
                 except EquiposeError as e:
                     rows.append({"scene": scene.name, "object": oid, "category": cat, "prompt": prompt,
                                  "error": type(e).__name__})
