@@ -104,3 +104,16 @@ def test_can_complete_clouds_add_cylinders(data_root):
     np.testing.assert_allclose(np.linalg.norm(clouds[5:], axis=2).max(1), 1.0, atol=1e-6)
     only, ids = load_complete(data_root, "cylinder", "train", limit=3)                # procedural cylinders only
     assert only.shape == (3, 1024, 3) and ids == ["cylinder_0", "cylinder_1", "cylinder_2"]
+
+
+def test_calibration_views_rest_upside_down_on_both_halves_of_the_shapes():
+    from equipose.train.evaluation.confidence import LYING_EVERY, UPSIDE_DOWN_EVERY, view_rest
+    for count in (20, 7, 8, 40):                                               # the test sets' source counts, and more
+        rests = [view_rest(v, count, lying=False, upside_down=True) for v in range(200)]
+        turned = [v % count for v, r in enumerate(rests) if r == "upside_down"]
+        assert abs(len(turned) - 200 / UPSIDE_DOWN_EVERY) <= 200 / count      # about every UPSIDE_DOWN_EVERY-th view
+        assert {s % 2 for s in turned} == {0, 1}                               # the fit's shapes and the held-out ones
+        assert set(rests) == {"standing", "upside_down"}
+    cans = [view_rest(v, 40, lying=True, upside_down=False) for v in range(9)]
+    assert cans == ["lying" if v % LYING_EVERY == LYING_EVERY - 1 else "standing" for v in range(9)]   # as before
+    assert set(view_rest(v, 20, lying=False, upside_down=False) for v in range(50)) == {"standing"}

@@ -11,7 +11,8 @@ Kernels: ICP (point-to-point and point-to-plane) and nearest neighbours (``equip
 sampling (``equipose.core.geometry``), RANSAC plane fit (``equipose.preprocess.plane``), the organized outlier
 filter (``equipose.preprocess.crop``), the box prompt's surfaces (``equipose.preprocess.surfaces``), the mirror plane
 of the frame priors (``equipose.runtime.frame_priors``), point normals (``equipose.core.normals``: the cylinder stage,
-instance mode), the handle fit (``equipose.core.handles``), hidden point removal (its spherical flip,
+instance mode), the handle fit (``equipose.core.handles``), the open-top test (``equipose.core.opening``: the
+confidence's evidence), hidden point removal (its spherical flip,
 ``equipose.runtime.visibility``, and convex hull, ``equipose.core.hull``: the view stage).
 """
 from __future__ import annotations
@@ -43,6 +44,7 @@ def load_kernels() -> float:
     from equipose.core.nearest import nearest_distances
     from equipose.core.neighbours import NearestNeighbours
     from equipose.core.normals import point_normals
+    from equipose.core.opening import top_closure
     from equipose.core.scores import hypothesis_scores
     from equipose.preprocess.crop import crop_points, organized_outlier_mask
     from equipose.preprocess.plane import find_support_plane, fit_plane_ransac
@@ -58,6 +60,7 @@ def load_kernels() -> float:
         icp_multi(x, x, np.eye(3)[None], np.zeros((1, 3)), iters=1, bidirectional=bidirectional)
     icp_multi(x, x[None], np.eye(3)[None], np.zeros((1, 3)), iters=1, hold=(2, [0.0, 0.0, 1.0]))
     icp_point_to_plane(x, x, np.tile([0.0, 0.0, 1.0], (len(x), 1)), np.eye(3)[None], np.zeros((1, 3)), iters=1)
+    top_closure(x, [0.0, 0.0, 1.0], np.zeros(3))
     for brute_max in (0, 64):
         NearestNeighbours(x, brute_max=brute_max).query(x, guess=np.arange(len(x)))
         nearest_distances(x, x, brute_max)

@@ -1,7 +1,7 @@
 """Calibrated confidence on the labelled real Kinect scenes of mOSD (learn33–44), box and mask prompts, no up prior.
 
 Usage: python tools/bench/real_confidence.py [--data DIR] [--assign mosd_categories.json] [--profile default]
-    [--up none|plane] [--json FILE]
+    [--up none|plane] [--models-from DIR] [--json FILE]
 Every labelled object that ``mosd_categories.json`` assigns to cup, bowl or can runs through its category's model
 (``cup-tabletop``, ``bowl-tabletop``, ``can-tabletop``) twice: ``predict(mask=its pixels)`` and
 ``predict(box=the mask's bounding box)``, with ``up=None`` (``--up plane``: the up prior from the frame's support
@@ -9,10 +9,9 @@ plane). The scenes give no 6D ground truth, so the check is the
 axis against the table (labels 1–9, its plane fitted by ``equipose.eval.realdata.table_plane``):
 - ``tilt``: the signed angle between the result's axis (symmetry axis, else rotation z) and the table normal,
   0 = upright, 180 = upside down (a can's axis is unsigned, so its tilt is folded to 0–90);
-- ``rest_err``: the error against the object's known rest pose: ``_lying`` objects lie (90°), every other stands
-  upright (0°); so an upside-down result counts 180° off.
-  ``mosd_categories.json`` names one bowl as upside down without saying which, so at most one bowl error is the
-  truth's own.
+- ``rest_err``: the error against the object's known rest pose: ``_lying`` objects lie (90°), ``_upside_down`` ones
+  stand on their opening (180°), every other stands upright (0°); so an upright result counts 180° off on an
+  upside-down cup, and the other way round.
 Per model and prompt: objects, share with ``rest_err`` ≤ 10°, median confidence, the confidence's AUROC for
 ``rest_err`` ≤ 10° (how well it ranks the right axes above the wrong ones), and how many are *confident-wrong*
 (``rest_err`` > 30°, confidence > 0.5, not ``ambiguous``). Angles in degrees.
@@ -49,15 +48,22 @@ def main(argv=None) -> int:
     ap.add_argument("--assign", default=str(repo / "docs" / "results" / "real" / "mosd_categories.json"))
     ap.add_argument("--profile", default="default")
     ap.add_argument("--up", choices=("none", "plane"), default="none", help="the up prior of every prediction")
+    ap.add_argument("--models-from", help="a folder of model files to use instead of the shipped ones of the same "
+                                          "name (e.g. a re-fitted confidence)")
     ap.add_argument("--json", help="write per-object rows here")
     a = ap.parse_args(argv)
     assign = json.loads(pathlib.Path(a.assign).read_text())
     lying = assign.get("_lying", {})
+    upside_down = assign.get("_upside_down", {})
     scenes = sorted(pathlib.Path(a.data).glob("learn*.pcd"))
     if not scenes:
         print(f"no learn*.pcd under {a.data}", file=sys.stderr)
         return 1
-    estimators = {cat: PoseEstimator(m, profile=a.profile) for cat, m in MODELS.items()}
+    def model(name: str) -> str:
+        own = pathlib.Path(a.models_from or ".") / f"{name}.onnx"
+        return str(own) if a.models_from and own.is_file() else name
+
+    estimators = {cat: PoseEstimator(model(m), profile=a.profile) for cat, m in MODELS.items()}
     rows = []
     for path in scenes:
         scene = load_labelled_scene(path)
@@ -68,7 +74,7 @@ def main(argv=None) -> int:
             mask = (label // 10 == int(oid)) & (label >= 20) & scene.valid
             if est is None or mask.sum() < 200:
                 continue
-            rest = 90.0 if oid in lying.get(scene.name, []) else 0.0
+            rest = 90.0 if oid in lying.get(scene.name, []) else 180.0 if oid in upside_down.get(scene.name, []) else 0.0
             for prompt, region in (("mask", {"mask": mask}), ("box", {"box": mask_box(mask)})):
                 try:
                     r = est.predict(scene.depth, scene.K, depth_unit="mm", up=None if a.up == "none" else a.up, **region)

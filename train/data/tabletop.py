@@ -37,6 +37,7 @@ class TabletopSpec:
     test_limit: int | None = None                  # ModelNet test shapes used
     cylinders: int = 0                             # procedural closed cylinders added to train (train/data/shapes.py)
     handle: bool = False                           # keep only cups with a handle, turned so it points to +x
+    upside_down: bool = False                      # an open container: it also rests on its opening on a table
     notes: str = ""
 
 
@@ -46,15 +47,15 @@ _P = "ycb_posecnn/models"
 TABLETOP = {
     "cup": TabletopSpec(scale=0.16, modelnet="cup", radius_m=(0.045, 0.075),
                         meshes=((f"{_O}/mug/visual.ply", "none"), (f"{_O}/blue_cup/visual.ply", "none")),
-                        scans=(f"{_P}/025_mug/points.xyz",), notes="mugs and cups, handle or not"),
+                        scans=(f"{_P}/025_mug/points.xyz",), upside_down=True, notes="mugs and cups, handle or not"),
     "mug": TabletopSpec(scale=0.16, modelnet="cup", radius_m=(0.045, 0.075),
                         meshes=((f"{_O}/mug/visual.ply", "none"), (f"{_O}/blue_cup/visual.ply", "none")),
-                        scans=(f"{_P}/025_mug/points.xyz",), handle=True,
+                        scans=(f"{_P}/025_mug/points.xyz",), handle=True, upside_down=True,
                         notes="mugs with a handle, full 6D: handle along +x (equipose.core.handles)"),
     "bowl": TabletopSpec(scale=0.2, modelnet="bowl", radius_m=(0.06, 0.1),
                          meshes=((f"{_O}/bowl/visual.ply", "none"), (f"{_O}/green_bowl/visual.ply", "none"),
                                  (f"{_O}/doraemon_bowl/visual.ply", "none")),
-                         scans=(f"{_P}/024_bowl/points.xyz",)),
+                         scans=(f"{_P}/024_bowl/points.xyz",), upside_down=True),
     "can": TabletopSpec(scale=0.25, modelnet="bottle", radius_m=(0.06, 0.125), train_limit=200, test_limit=40,
                         meshes=((f"{_Y}/YcbMasterChefCan/textured_simple_reoriented.obj", "none"),
                                 (f"{_Y}/YcbTomatoSoupCan/textured_simple_reoriented.obj", "none"),

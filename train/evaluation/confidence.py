@@ -38,6 +38,7 @@ RIGHT_DEG = 10.0        # a right pose: rotation error ≤ this (modulo symmetry
 RIGHT_M = 0.02          # ... and centre error ≤ this (metres)
 RIGHT_DIAG = 0.05       # ModelNet models: centre error ≤ this share of the bounding-box diagonal instead
 LYING_EVERY = 3         # cylinders: every third calibration view lies on its side
+UPSIDE_DOWN_EVERY = 8   # open containers (cups, mugs, bowls): every eighth stands on its opening
 WRONG_DEG = 30.0        # confident-wrong: error above this with confidence > 0.5, not flagged ambiguous
 L2 = 1e-3               # ridge on the standardised weights (per mean log-loss)
 
@@ -59,7 +60,8 @@ def collect(model, views: int, seed: int = 0, data_root=None, progress: bool = T
     handle's visible pixels in the render, "handle_visible", "handle_points" the result's); views cycle through the
     test shapes of the model's tabletop category. Cylinders (``shape_prior`` "cylinder": cans) also rest on their
     side: every ``LYING_EVERY``-th view lies (``"rest"``: "lying", else "standing"), since a fallen can is as
-    common on a table as a standing one."""
+    common on a table as a standing one; open containers (``TabletopSpec.upside_down``: cups, mugs, bowls) stand on
+    their opening in every ``UPSIDE_DOWN_EVERY``-th view (``"rest"``: "upside_down"), as they are put away."""
     from equipose import PoseEstimator
     from equipose.eval.metrics import rotation_errors
     from equipose.train.data.tabletop import TABLETOP, tabletop_sources
@@ -77,8 +79,9 @@ def collect(model, views: int, seed: int = 0, data_root=None, progress: bool = T
         from equipose.core.handles import handle_zone_mask
         parts = [handle_zone_mask(src[1]["points"], src[1]["points"], handle) for src in sources]
     rows = []
-    for v, s, view, lies in occluded_views(sources, views, seed, est.metadata.get("shape_prior") == "cylinder", parts,
-                                           desc=f"confidence {est.category}", progress=progress):
+    for v, s, view, rest in occluded_views(sources, views, seed, est.metadata.get("shape_prior") == "cylinder", parts,
+                                           desc=f"confidence {est.category}", progress=progress,
+                                           upside_down=TABLETOP[est.category].upside_down):
         for prompt in ("box", "mask"):
             region = {"box": view.box} if prompt == "box" else {"mask": view.mask}
             for up in (None, "plane"):
@@ -92,7 +95,7 @@ def collect(model, views: int, seed: int = 0, data_root=None, progress: bool = T
                 centre = float(np.linalg.norm(r.translation - view.t))
                 axis = float(rotation_errors(r.rotation[None], view.R[None], "continuous:z", unsigned_axis=unsigned)[0])
                 rows.append({"shape": s, "view": v, "prompt": prompt, "up": up or "none",
-                             "rest": "lying" if lies else "standing", "rot_err": rot, "axis_err": axis,
+                             "rest": rest, "rot_err": rot, "axis_err": axis,
                              "centre_err": centre, "right": bool(rot <= RIGHT_DEG and centre <= RIGHT_M),
                              "confidence": float(r.confidence), "ambiguous": bool(r.ambiguous),
                              "occluded": float(view.occluded), "ms": ms, **r.extras["evidence"]})
@@ -102,24 +105,37 @@ def collect(model, views: int, seed: int = 0, data_root=None, progress: bool = T
     return rows
 
 
+def view_rest(v: int, count: int, lying: bool, upside_down: bool) -> str:
+    """How the ``v``-th calibration view over ``count`` sources rests: "lying" (cylinders, ``lying``: every
+    ``LYING_EVERY``-th view), "upside_down" (open containers, ``upside_down``: every ``UPSIDE_DOWN_EVERY``-th, the
+    phase moved on by one in each round through the sources, so that even- and odd-numbered shapes, the fit's and the
+    held-out half, both stand on their opening) or "standing"."""
+    if lying and v % LYING_EVERY == LYING_EVERY - 1:
+        return "lying"
+    if upside_down and (v % count + v // count) % UPSIDE_DOWN_EVERY == UPSIDE_DOWN_EVERY - 1:
+        return "upside_down"
+    return "standing"
+
+
 def occluded_views(sources: list, views: int, seed: int, lying: bool, parts: list | None = None, desc: str = "",
-                   progress: bool = True):
-    """Yield (view index v, source index s, ``OccludedView``, whether it lies) for v in 0..``views``−1: source v mod len(sources)
-    (``tabletop_sources`` entries; ``parts`` [its part points or None] per source) rendered behind an occluder with
-    the generator seeded [``seed``, v]; with ``lying`` (cylinders) every ``LYING_EVERY``-th view lies on its side.
-    Views that ``render_occluded`` cannot make are skipped."""
+                   progress: bool = True, upside_down: bool = False):
+    """Yield (view index v, source index s, ``OccludedView``, its rest: "standing" | "lying" | "upside_down") for v in
+    0..``views``−1: source v mod len(sources) (``tabletop_sources`` entries; ``parts`` [its part points or None] per
+    source) rendered behind an occluder with the generator seeded [``seed``, v]; with ``lying`` (cylinders) every
+    ``LYING_EVERY``-th view lies on its side, with ``upside_down`` (open containers) some stand on their opening
+    (``view_rest``). Views that ``render_occluded`` cannot make are skipped."""
     from tqdm import tqdm
 
     from equipose.train.data.occluded import render_occluded
-    on_side = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])  # 90° about x: the axis horizontal
+    turns = {"lying": np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]]),   # 90° about x: axis level
+             "upside_down": np.diag([1.0, -1.0, -1.0])}                                # 180° about x
     parts = [None] * len(sources) if parts is None else parts
     for v in tqdm(range(views), desc=desc, disable=not progress):
         s = v % len(sources)
-        lies = lying and v % LYING_EVERY == LYING_EVERY - 1
-        view = render_occluded(sources[s][1], np.random.default_rng([seed, v]), part=parts[s],
-                               rest=on_side if lies else None)
+        rest = view_rest(v, len(sources), lying, upside_down)
+        view = render_occluded(sources[s][1], np.random.default_rng([seed, v]), part=parts[s], rest=turns.get(rest))
         if view is not None:
-            yield v, s, view, lies
+            yield v, s, view, rest
 
 
 def collect_modelnet(model, data_root=None, cache_dir=None, limit: int | None = None, progress: bool = True) -> list:
@@ -161,9 +177,12 @@ def collect_modelnet(model, data_root=None, cache_dir=None, limit: int | None = 
     return rows
 
 
-MONOTONE = ("margin", "flip_margin", "axis_ratio")   # a larger margin never lowers the confidence
-AGAINST = ("plane_tilt", "plane_float", "plane_sink", "plane_rest")   # a pose tilted on, floating above, sunk into
-                                                        # or leaning on its support plane is never more likely right
+MONOTONE = ("margin", "flip_margin", "axis_ratio", "top_taper", "bottom_cap")   # a larger margin, a body widening
+                                                        # towards the posed opening or a closed posed bottom never
+                                                        # lowers the confidence
+AGAINST = ("plane_tilt", "plane_float", "plane_sink", "plane_rest", "top_cap")   # a pose tilted on, floating above,
+                                                        # sunk into or leaning on its support plane, or whose opening
+                                                        # shows a closed bottom, is never more likely right
 
 
 def _columns(features, names) -> list:

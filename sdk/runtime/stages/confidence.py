@@ -23,7 +23,12 @@ of the object was seen —
 - ``plane_rest``: |sin 2θ| for the same angle θ: 0 where the pose rests on the plane upright, lying on its side or
   upside down, 1 halfway between (45°, 135°), where nothing stands by itself (0 without a plane);
 - ``axis_ratio``: cans under an up prior: the cylinder stage's cost of the best other axis over the pose's axis
-  (near 1: the normals barely decide between standing and lying); ``AXIS_RATIO_CLIP`` where the stage did not run.
+  (near 1: the normals barely decide between standing and lying); ``AXIS_RATIO_CLIP`` where the stage did not run;
+- ``top_cap``, ``bottom_cap``, ``top_taper``: whether the end the pose calls its top (category +z) looks open or
+  closed (``equipose.core.opening.top_closure`` of the input points along the posed axis through the pose's centre):
+  the share of points near the axis at the very top (a cup's closed bottom, seen when it stands upside down and is
+  posed upright), the same at the posed bottom (seen when it stands upside down and is posed so), and how much the
+  body widens towards the posed top.
 
 Before the evidence is read, a result whose selection margin is below the calibration's ``runner_up_margin`` is
 flagged ``ambiguous``: a pose more than 30° away explains the points about as well, and on the fitting views such
@@ -44,6 +49,7 @@ import math
 import numpy as np
 
 from equipose.core.nearest import nearest_distances
+from equipose.core.opening import top_closure
 from equipose.runtime.stages.cylinder import AXIS_RATIO_CLIP
 from equipose.runtime.stage import ObjectState, Stage, register_stage
 
@@ -81,6 +87,7 @@ def evidence(state: ObjectState) -> dict:
     flip = state.extras.get("flip_margin", getattr(state.selection, "flip_margin", float("nan")))
     gap = _plane_gap(state, posed, rms)                                         # RMS radii, + above the plane
     cos_up = None if state.support_up is None else float(np.clip(state.rotation[:, 2] @ state.support_up, -1, 1))
+    ends = top_closure(x, state.rotation[:, 2], state.translation)           # the posed top: open or closed
     return {
         "margin": float(state.confidence),
         "flip_margin": float(np.clip(flip, 0.0, 1.0)) if np.isfinite(flip) else 1.0,
@@ -100,6 +107,9 @@ def evidence(state: ObjectState) -> dict:
         "plane_float": float(np.clip(gap, 0.0, CONTACT_CLIP)),
         "plane_sink": float(np.clip(-gap, 0.0, CONTACT_CLIP)),
         "axis_ratio": float(state.extras.get("axis_ratio", AXIS_RATIO_CLIP)),
+        "top_cap": ends.cap,
+        "bottom_cap": ends.bottom,
+        "top_taper": ends.taper,
     }
 
 
