@@ -20,7 +20,7 @@ from typing import Callable, Iterable
 import numpy as np
 
 from equipose.core import icosahedral
-__all__ = ["assert_equivariant", "equivariance_errors", "torch_model_fn", "torch_layer_fn", "onnx_model_fn",
+__all__ = ["cup_view_points", "assert_equivariant", "equivariance_errors", "torch_model_fn", "torch_layer_fn", "onnx_model_fn",
            "posed_state"]
 
 ModelFn = Callable[[np.ndarray], dict]
@@ -144,4 +144,18 @@ def posed_state(points, rotation, translation, *, canonical=None, symmetry: str 
     state.selection = select_hypothesis(state.R, state.t, state.scores, symmetry=symmetry)
     state.set_pose(R, t)
     return state
+
+
+def cup_view_points(seed: int = 0, upside_down: bool = False) -> np.ndarray:
+    """[900, 3] points of a cup seen from above, for tests of open-top checks: its outer wall (radius 0.35 at the
+    base widening to 0.45 at the rim, height 0–1, z up) and its inside floor near the base; ``upside_down``: the same
+    body standing on its opening (z mirrored into 0–1), so the floor plate is what its top shows."""
+    rng = np.random.default_rng(seed)
+    th, z = rng.uniform(0.0, 2.0 * np.pi, 700), rng.uniform(0.0, 1.0, 700)
+    r = 0.35 + 0.1 * z
+    wall = np.c_[r * np.cos(th), r * np.sin(th), z]                            # [700, 3]
+    a, rr = rng.uniform(0.0, 2.0 * np.pi, 200), 0.3 * np.sqrt(rng.uniform(0.0, 1.0, 200))
+    floor = np.c_[rr * np.cos(a), rr * np.sin(a), np.full(200, 0.05)]         # [200, 3]
+    cloud = np.r_[wall, floor]
+    return cloud * [1.0, 1.0, -1.0] + [0.0, 0.0, 1.0] if upside_down else cloud
 

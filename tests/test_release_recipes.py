@@ -135,6 +135,16 @@ def test_dry_run_lists_the_steps(capsys):
     assert lines == expected
 
 
+def test_kept_confidence_weights_refresh_only_the_flags():
+    for name, keep in (("bowl-tabletop", True), ("mug-tabletop", True), ("cup-tabletop", False)):
+        r = load_recipe(recipe_path(name))
+        assert r.confidence_keep_weights is keep
+        step = [s for s in plan(r, state="-", skip_eval=True) if "equipose.train.evaluation.confidence" in s.argv][0]
+        assert ("--flags-only" in step.argv) is keep
+        cal = json.loads(_metadata(name)["confidence_calibration"])
+        assert ("flags_chosen_on" in cal) is keep and cal["closed_top_cap"] > 0
+
+
 def test_plan_without_state_and_without_evaluation(tmp_path):
     r = load_recipe(recipe_path("chair-complete"))
     steps = plan(r, state="-", skip_eval=True)

@@ -11,7 +11,7 @@ from equipose import PoseEstimator, errors
 from equipose.core.metadata import CONFIDENCE_FEATURES, decode_metadata
 from equipose.core.model_file import read_metadata_props
 from equipose.runtime.stages.confidence import FAR, ConfidenceStage, evidence
-from equipose.testing import posed_state
+from equipose.testing import cup_view_points, posed_state
 
 
 def _cloud(n=256, seed=0):
@@ -138,6 +138,35 @@ def test_the_runner_up_margin_is_fitted_where_low_margins_are_coin_tosses():
     rows += [{"margin": 0.2 + 0.01 * i, "right": True} for i in range(40)]
     assert runner_up_margin(rows) == 0.02                                      # the widest candidate with ≥ 0.5 wrong
     assert runner_up_margin([{**r, "right": True} for r in rows]) == 0.0
+
+
+def test_a_closed_posed_top_flags_the_result_ambiguous():
+    """A ``top_cap`` at or above the calibration's ``closed_top_cap`` (the posed top shows a closed bottom: the object
+    may stand the other way up) flags the result ``ambiguous`` and the evidence reads the flag; below it, or without
+    the key, nothing changes."""
+    x = cup_view_points(seed=4)
+    canon = x - [0.0, 0.0, 0.5]
+    flipped = np.diag([1.0, -1.0, -1.0])                                       # posed upside down: its top is closed
+    cal = {"features": ("margin", "ambiguous"), "weights": np.array([1.0, -3.0]), "bias": 0.0, "closed_top_cap": 0.1}
+    for c, R, flagged in ((cal, flipped, True), (cal, np.eye(3), False), ({**cal, "closed_top_cap": 0.0}, flipped, False),
+                          ({k: v for k, v in cal.items() if k != "closed_top_cap"}, flipped, False)):
+        state = posed_state(x, R, np.array([0.0, 0.0, 0.5]), canonical=canon @ R.T)
+        state.confidence, state.ambiguous = 0.5, False
+        ConfidenceStage(c).run(state)
+        assert state.ambiguous is flagged and state.extras["evidence"]["ambiguous"] == float(flagged)
+        assert state.confidence == pytest.approx(1 / (1 + math.exp(-(0.5 - 3.0 * flagged))))
+
+
+def test_the_closed_top_share_is_fitted_where_closed_tops_are_mostly_wrong():
+    from equipose.train.evaluation.confidence import CLOSED_TOP_WRONG, closed_top_cap, flag_rows
+    rows = [{"top_cap": 0.0, "margin": 0.5, "right": i % 3 > 0} for i in range(60)]
+    rows += [{"top_cap": 0.06, "margin": 0.5, "right": i % 2 == 0} for i in range(10)]   # half wrong: not enough
+    rows += [{"top_cap": 0.13, "margin": 0.5, "right": i % 10 == 0} for i in range(10)]  # 90 % wrong
+    assert CLOSED_TOP_WRONG == 0.9 and closed_top_cap(rows) == 0.08            # the lowest candidate with ≥ 0.9 wrong
+    assert closed_top_cap([{**r, "right": True} for r in rows]) == 0.0
+    assert closed_top_cap([{"margin": 0.5, "right": False}] * 10) == 0.0       # rows without the evidence
+    flagged = flag_rows(rows, {"closed_top_cap": 0.08, "runner_up_margin": 0.0})
+    assert [r["ambiguous"] for r in flagged[-10:]] == [1.0] * 10 and "ambiguous" not in flagged[0]
 
 
 def test_calibration_metadata_round_trip_and_errors(tiny_model, tmp_path):

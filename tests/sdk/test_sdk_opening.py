@@ -7,33 +7,20 @@ from scipy.spatial.transform import Rotation
 from equipose import errors
 from equipose.core.opening import top_closure
 from equipose.runtime.stages.confidence import evidence
-from equipose.testing import posed_state
-
-
-def _cup_view(seed=0, closed_top=False):
-    """Points of a cup seen from above [N, 3]: its outer wall widening upwards (z up, 0–1), its inside floor low
-    down; ``closed_top``: the same body standing on its opening, so its bottom plate is what the top shows."""
-    rng = np.random.default_rng(seed)
-    th, z = rng.uniform(0.0, 2.0 * np.pi, 700), rng.uniform(0.0, 1.0, 700)
-    r = 0.35 + 0.1 * z
-    wall = np.c_[r * np.cos(th), r * np.sin(th), z]                            # [700, 3]
-    a, rr = rng.uniform(0.0, 2.0 * np.pi, 200), 0.3 * np.sqrt(rng.uniform(0.0, 1.0, 200))
-    plate = np.c_[rr * np.cos(a), rr * np.sin(a), np.full(200, 0.05)]         # [200, 3] the inside floor
-    cloud = np.r_[wall, plate]
-    return cloud * [1.0, 1.0, -1.0] + [0.0, 0.0, 1.0] if closed_top else cloud
+from equipose.testing import cup_view_points, posed_state
 
 
 def test_an_open_top_reads_open_and_a_closed_one_closed():
-    cap, bottom, taper = top_closure(_cup_view(), [0.0, 0.0, 1.0], [0.0, 0.0, 0.5])
+    cap, bottom, taper = top_closure(cup_view_points(), [0.0, 0.0, 1.0], [0.0, 0.0, 0.5])
     assert cap == 0.0 and bottom > 0.1 and taper > 0.2                        # inside floor low, widening upwards
-    cap, bottom, taper = top_closure(_cup_view(closed_top=True), [0.0, 0.0, 1.0], [0.0, 0.0, 0.5])
+    cap, bottom, taper = top_closure(cup_view_points(upside_down=True), [0.0, 0.0, 1.0], [0.0, 0.0, 0.5])
     assert cap > 0.1 and bottom == 0.0 and taper < -0.2                       # the bottom plate on top, narrowing
 
 
 def test_the_test_follows_the_axis_and_its_place_not_the_frame():
     R = Rotation.from_euler("xyz", [30, -50, 70], degrees=True).as_matrix()
     shift = np.array([0.4, -0.2, 1.5])
-    x = _cup_view(seed=3)
+    x = cup_view_points(seed=3)
     ref = top_closure(x, [0.0, 0.0, 1.0], [0.0, 0.0, 0.5])
     moved = top_closure(x @ R.T + shift, R[:, 2] * 3.0, R @ [0.05, -0.03, 0.5] + shift)   # any length, centre off
     assert moved == pytest.approx(ref, abs=1e-9)                              # the circle fit finds the axis again
@@ -53,7 +40,7 @@ def test_bad_input_is_refused(points, axis, match):
 
 
 def test_the_evidence_reads_the_posed_top():
-    x = _cup_view(seed=5)
+    x = cup_view_points(seed=5)
     canon = x - [0.0, 0.0, 0.5]
     up = evidence(posed_state(x, np.eye(3), np.array([0.0, 0.0, 0.5]), canonical=canon))
     flipped = np.diag([1.0, -1.0, -1.0])                                       # the same points, posed upside down

@@ -30,7 +30,7 @@ from scipy.optimize import minimize
 from equipose.core.errors import ConfigError, EquiposeError
 from equipose.core.metadata import CONFIDENCE_FEATURES
 from equipose.eval.metrics import auroc
-from equipose.runtime.stages.confidence import below_runner_up, logistic
+from equipose.runtime.stages.confidence import below_runner_up, closed_top, logistic
 
 __all__ = ["RIGHT_DEG", "RIGHT_M", "RIGHT_DIAG", "collect", "occluded_views", "collect_modelnet", "fit_logistic", "auroc", "reliability", "summarize", "main"]
 
@@ -314,14 +314,40 @@ def runner_up_margin(rows: list) -> float:
     return 0.0
 
 
+CLOSED_TOP_CANDIDATES = (0.05, 0.08, 0.1, 0.12, 0.15, 0.2)   # top_cap thresholds tried, lowest first
+CLOSED_TOP_WRONG = 0.9                                     # ... the share of wrong results needed at or above one
+
+
+def closed_top_cap(rows: list) -> float:
+    """The lowest ``top_cap`` at or above which the results are wrong at least ``CLOSED_TOP_WRONG`` of the time (at
+    least ``RUNNER_UP_MIN_RESULTS`` of them), else 0: there the posed top shows a closed bottom, the object may stand
+    the other way up, and the confidence stage flags the result ``ambiguous``. Rows need "top_cap" and "right"."""
+    if not rows or "top_cap" not in rows[0]:
+        return 0.0
+    cap = np.array([r["top_cap"] for r in rows], np.float64)                  # [n]
+    wrong = ~np.array([bool(r["right"]) for r in rows])                        # [n]
+    for t in CLOSED_TOP_CANDIDATES:
+        above = cap >= t
+        if above.sum() >= RUNNER_UP_MIN_RESULTS and wrong[above].mean() >= CLOSED_TOP_WRONG:
+            return t
+    return 0.0
+
+
+def flag_rows(rows: list, calibration: dict) -> list:
+    """Copies of ``rows`` with "ambiguous" set where the confidence stage would flag them under ``calibration``
+    (``runner_up_margin``, ``closed_top_cap``) before it reads the evidence."""
+    return [dict(r, ambiguous=1.0) if below_runner_up(r["margin"], calibration)
+            or closed_top(r.get("top_cap", 0.0), calibration) else dict(r) for r in rows]
+
+
 def calibrate(rows: list, features=CONFIDENCE_FEATURES) -> tuple:
     """(metadata dict for ``confidence_calibration``, held-out summary, the rows as fitted: copies of ``rows``, those
-    below the runner-up margin flagged ``ambiguous`` as the stage will flag them, the held-out ones with "p"). The
-    runner-up margin (``runner_up_margin``) and the features (``choose_features``) are chosen on the fit rows alone;
-    ``rows`` themselves are left as they are."""
-    runner_up = runner_up_margin(split_rows(rows)[0])
-    rows = [dict(r, ambiguous=1.0) if below_runner_up(r["margin"], {"runner_up_margin": runner_up}) else dict(r)
-            for r in rows]
+    below the runner-up margin or above the closed-top share flagged ``ambiguous`` as the stage will flag them, the
+    held-out ones with "p"). The flags (``runner_up_margin``, ``closed_top_cap``) and the features
+    (``choose_features``) are chosen on the fit rows alone; ``rows`` themselves are left as they are."""
+    flags = {"runner_up_margin": runner_up_margin(split_rows(rows)[0]),
+             "closed_top_cap": closed_top_cap(split_rows(rows)[0])}
+    rows = flag_rows(rows, flags)
     fit, held = split_rows(rows)
     if not fit or not held:
         raise ConfigError("confidence calibration needs views of at least two test shapes")
@@ -341,7 +367,7 @@ def calibrate(rows: list, features=CONFIDENCE_FEATURES) -> tuple:
                                           "samples") + f" (even-numbered shapes); held out {len(held)}",
             "held_out": {k: round(v, 4) if isinstance(v, float) else v for k, v in summary.items()
                          if k != "reliability"},
-            "runner_up_margin": runner_up}
+            **flags}
     return meta, summary, rows
 
 
@@ -397,6 +423,27 @@ def _check(rows: list, model: str, json_path: str | None) -> int:
     return 0
 
 
+def _refresh_flags(rows: list, model: str, write: bool) -> int:
+    """``--flags-only``: the file's stored calibration with its ``runner_up_margin`` and ``closed_top_cap`` chosen
+    again on the fit rows (even-numbered shapes); the weights stay as stored."""
+    from equipose.core.metadata import decode_metadata
+    from equipose.core.model_file import read_metadata_props
+    stored = decode_metadata(read_metadata_props(model), model).get("confidence_calibration")
+    if stored is None:
+        raise ConfigError(f"{model} stores no confidence calibration to keep: fit one (drop --flags-only)")
+    fit = split_rows(rows)[0]
+    meta = {**stored, "features": list(stored["features"]), "weights": [float(w) for w in stored["weights"]],
+            "runner_up_margin": runner_up_margin(fit), "closed_top_cap": closed_top_cap(fit),
+            "flags_chosen_on": f"{len(fit)} rendered occluded tabletop views (even-numbered shapes); weights as fitted"}
+    print(f"{pathlib.Path(model).name}: runner_up_margin {stored.get('runner_up_margin', 0.0)} → "
+          f"{meta['runner_up_margin']}, closed_top_cap {stored.get('closed_top_cap', 0.0)} → {meta['closed_top_cap']} "
+          f"(chosen on {len(fit)} results; weights kept)")
+    if write:
+        from equipose.export.onnx_export import update_metadata_with_int8
+        update_metadata_with_int8(model, confidence_calibration=meta)
+    return 0
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--model", required=True)
@@ -409,6 +456,9 @@ def main(argv=None) -> int:
     ap.add_argument("--json", help="write the summary and every row here")
     ap.add_argument("--plot", help="write the held-out reliability diagram (PNG) here")
     ap.add_argument("--without", default="", help="comma-separated evidence features to leave out of the fit")
+    ap.add_argument("--flags-only", dest="flags_only", action="store_true",
+                    help="keep the file's stored weights and only re-choose its ambiguity flags (runner_up_margin, "
+                         "closed_top_cap) on the fit rows")
     ap.add_argument("--check", action="store_true",
                     help="score the confidence the model file stores on these results instead of fitting a new one")
     a = ap.parse_args(argv)
@@ -422,6 +472,8 @@ def main(argv=None) -> int:
             collect_modelnet(est, a.data_root, limit=a.limit)
     if a.check:
         return _check(rows, a.model, a.json)
+    if a.flags_only:
+        return _refresh_flags(rows, a.model, a.write)
     without = {f for f in a.without.split(",") if f}
     if without - set(CONFIDENCE_FEATURES):
         raise ConfigError(f"--without: unknown feature(s) {sorted(without - set(CONFIDENCE_FEATURES))}; features: "

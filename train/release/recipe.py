@@ -83,6 +83,7 @@ class Recipe:
     eval_mode: str = ""
     eval_icp_samples: int = 100
     centre_views: int | None = None
+    confidence_keep_weights: bool = False
 
 
 def _text(v):
@@ -149,6 +150,7 @@ SCHEMA = {
     ("eval", "mode"): ("eval_mode", _mode, '"complete" or "partial"'),
     ("eval", "icp_samples"): ("eval_icp_samples", _int(1), "an integer ≥ 1"),
     ("centre", "views"): ("centre_views", _int(1), "rendered training views, an integer ≥ 1"),
+    ("confidence", "keep_weights"): ("confidence_keep_weights", lambda v: isinstance(v, bool), "true or false"),
 }
 TABLES = sorted({t for t, _ in SCHEMA if t})
 

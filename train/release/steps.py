@@ -110,8 +110,10 @@ def _file_steps(r: Recipe, f: str, views: int, skip_eval: bool) -> list:
         steps.append(_python("equipose.train.evaluation.centre", "--model", model, "--views", r.centre_views,
                              "--write", title=f"{f} (and its int8 copy): the centre's depth offset"))
     if f == r.name:                                                            # also written into the int8 file
+        keep = ["--flags-only"] if r.confidence_keep_weights else []
         steps.append(_python("equipose.train.evaluation.confidence", "--model", model, "--views", CONFIDENCE_VIEWS,
-                             "--write", title=f"{f} (and its int8 copy): calibrated confidence"))
+                             "--write", *keep, title=f"{f} (and its int8 copy): calibrated confidence"
+                             + (" (its weights kept, its flags chosen again)" if keep else "")))
     if not skip_eval:
         steps.append(_equipose("eval", "--model", model, *test, "--icp-samples", r.eval_icp_samples,
                                "--json", f"{RESULTS}/{f}.json", "--plot", f"{RESULTS}/{f}.png", "--store-metrics",

@@ -33,7 +33,10 @@ of the object was seen —
 Before the evidence is read, a result whose selection margin is below the calibration's ``runner_up_margin`` is
 flagged ``ambiguous``: a pose more than 30° away explains the points about as well, and on the fitting views such
 results were wrong at least half the time (``equipose.train.evaluation.confidence.runner_up_margin``; the shipped
-cup, bowl and mug files hold 0.05, can 0.03; absent: no such flag).
+cup, bowl and mug files hold 0.05, can 0.03; absent: no such flag). Likewise a result whose ``top_cap`` reaches the
+calibration's ``closed_top_cap``: the posed top shows a closed bottom, so the object may stand the other way up, and
+on the fitting views such results were wrong at least ``CLOSED_TOP_WRONG`` of the time
+(``equipose.train.evaluation.confidence.closed_top_cap``; absent or 0: no such flag).
 
 With ``confidence_calibration`` in the model file, ``confidence`` = σ(bias + Σ weight·feature): the estimated chance
 that the rotation is within 10° of the truth (modulo the symmetry) and the centre within 2 cm, fitted on rendered
@@ -53,7 +56,7 @@ from equipose.core.opening import top_closure
 from equipose.runtime.stages.cylinder import AXIS_RATIO_CLIP
 from equipose.runtime.stage import ObjectState, Stage, register_stage
 
-__all__ = ["ConfidenceStage", "FAR", "evidence", "logistic", "below_runner_up"]
+__all__ = ["ConfidenceStage", "FAR", "evidence", "logistic", "below_runner_up", "closed_top"]
 
 FAR = 0.25          # RMS radii: a point farther than this from the other set is unexplained / unseen
 CONTACT_CLIP = 2.0  # RMS radii: plane_float / plane_sink saturate here
@@ -69,6 +72,14 @@ def below_runner_up(margin: float, calibration: dict | None) -> bool:
     ``confidence_calibration`` entry, or None): its margin lies below the entry's ``runner_up_margin``, so a pose more
     than 30° away explains the points about as well. The stage and the calibration's fit both apply this rule."""
     return calibration is not None and margin < calibration.get("runner_up_margin", 0.0)
+
+
+def closed_top(top_cap: float, calibration: dict | None) -> bool:
+    """Whether a result whose evidence reads ``top_cap`` is flagged ``ambiguous`` under ``calibration`` (the
+    ``confidence_calibration`` entry, or None): its posed top shows a closed bottom at least as clearly as the
+    entry's ``closed_top_cap``. The stage and the calibration's fit both apply this rule."""
+    t = 0.0 if calibration is None else float(calibration.get("closed_top_cap", 0.0) or 0.0)
+    return t > 0.0 and top_cap >= t
 
 
 def evidence(state: ObjectState) -> dict:
@@ -151,6 +162,9 @@ class ConfidenceStage(Stage):
         if below_runner_up(state.confidence, c):                               # a pose > 30° away fits as well
             state.ambiguous = True
         ev = evidence(state)
+        if closed_top(ev["top_cap"], c):                                        # it may stand the other way up
+            state.ambiguous = True
+            ev["ambiguous"] = 1.0
         state.extras["evidence"] = {k: round(v, 6) for k, v in ev.items()}
         if c is None:
             return
