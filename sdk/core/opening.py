@@ -48,47 +48,61 @@ def top_closure(points, axis, centre) -> Closure:
 
     Raises ``InvalidPointsError`` for fewer than 10 points, a zero axis or non-finite input."""
     p = np.ascontiguousarray(points, np.float64)
-    a = np.asarray(axis, np.float64).reshape(3)
-    c = np.asarray(centre, np.float64).reshape(3)
+    a = np.ascontiguousarray(axis, np.float64).reshape(3)
+    c = np.ascontiguousarray(centre, np.float64).reshape(3)
     if p.ndim != 2 or p.shape[1] != 3 or len(p) < 10:
         raise InvalidPointsError(f"top_closure needs an [N ≥ 10, 3] cloud, got shape {p.shape}")
-    norm = float(np.linalg.norm(a))
-    if not (np.all(np.isfinite(p)) and np.all(np.isfinite(c)) and np.isfinite(norm) and norm > 1e-12):
+    norm = float(np.sqrt(a @ a))
+    if not (np.isfinite(p).all() and np.isfinite(c).all() and np.isfinite(norm) and norm > 1e-12):
         raise InvalidPointsError("top_closure needs finite points, a finite centre and a non-zero axis")
-    a = a / norm
-    e1 = np.cross(a, [1.0, 0.0, 0.0] if abs(a[0]) < 0.9 else [0.0, 1.0, 0.0])
-    e1 /= np.linalg.norm(e1)
-    e2 = np.cross(a, e1)                                                       # (e1, e2, a) right-handed
-    cap, bottom, taper = _top_closure(p - c, np.stack([e1, e2, a], axis=1))   # [N, 3] offsets, [3, 3] frame
+    cap, bottom, taper = _top_closure(p, a / norm, c)
     return Closure(float(cap), float(bottom), float(taper))
 
 
 @njit(cache=True)
-def _top_closure(v, frame):
-    """``top_closure`` of the offsets ``v`` [N, 3] from the centre, in the columns (e1, e2, axis) of ``frame``."""
-    n = len(v)
-    w = v @ frame                                                              # [N, 3]: across (2), along (1)
-    h = w[:, 2].copy()
+def _top_closure(p, a, c):
+    """``top_closure`` of the points ``p`` [N, 3] along the unit axis ``a`` [3] through ``c`` [3]."""
+    n = len(p)
+    # (e1, e2, a) right-handed: e1 = a × (x or y), e2 = a × e1
+    ux, uy, uz = (1.0, 0.0, 0.0) if abs(a[0]) < 0.9 else (0.0, 1.0, 0.0)
+    e1 = np.array([a[1] * uz - a[2] * uy, a[2] * ux - a[0] * uz, a[0] * uy - a[1] * ux])
+    e1 /= np.sqrt(e1[0] ** 2 + e1[1] ** 2 + e1[2] ** 2)
+    e2 = np.array([a[1] * e1[2] - a[2] * e1[1], a[2] * e1[0] - a[0] * e1[2], a[0] * e1[1] - a[1] * e1[0]])
+    u, v, h = np.empty(n), np.empty(n), np.empty(n)                            # across (2) and along the axis
+    for i in range(n):
+        dx, dy, dz = p[i, 0] - c[0], p[i, 1] - c[1], p[i, 2] - c[2]
+        u[i] = dx * e1[0] + dy * e1[1] + dz * e1[2]
+        v[i] = dx * e2[0] + dy * e2[1] + dz * e2[2]
+        h[i] = dx * a[0] + dy * a[1] + dz * a[2]
     hs = np.sort(h)
     lo, hi = sorted_percentile(hs, 2.0), sorted_percentile(hs, 98.0)
     q1, q2 = sorted_quantile(hs, 1.0 / 3.0), sorted_quantile(hs, 2.0 / 3.0)
-    r0 = np.sqrt(w[:, 0] ** 2 + w[:, 1] ** 2)                                  # [N] radii about the given centre
-    cx, cy = 0.0, 0.0
+    r0 = np.sqrt(u * u + v * v)                                                # [N] radii about the given centre
+    suu = suv = su = svv = sv = 0.0                                            # circle fit on the middle third:
+    bu = bv = b1 = 0.0                                                         # x² + y² = 2cx·x + 2cy·y + k
     m = 0
-    A = np.zeros((3, 3))
-    b = np.zeros(3)
-    for i in range(n):                                                         # circle fit on the middle third
+    for i in range(n):
         if q1 <= h[i] <= q2:
-            row = np.array([2.0 * w[i, 0], 2.0 * w[i, 1], 1.0])
-            A += np.outer(row, row)
-            b += row * (w[i, 0] ** 2 + w[i, 1] ** 2)
+            x, y = 2.0 * u[i], 2.0 * v[i]
+            rr = u[i] * u[i] + v[i] * v[i]
+            suu += x * x
+            suv += x * y
+            su += x
+            svv += y * y
+            sv += y
+            bu += x * rr
+            bv += y * rr
+            b1 += rr
             m += 1
-    if m >= MIN_WALL_POINTS and abs(np.linalg.det(A)) > 1e-300:
-        sol = np.linalg.solve(A, b)
-        if np.isfinite(sol[0]) and np.isfinite(sol[1]) and \
-                np.sqrt(sol[0] ** 2 + sol[1] ** 2) <= sorted_percentile(np.sort(r0), 90.0):
-            cx, cy = sol[0], sol[1]
-    rho = np.sqrt((w[:, 0] - cx) ** 2 + (w[:, 1] - cy) ** 2)                   # [N] distance from the axis
+    cx, cy = 0.0, 0.0
+    if m >= MIN_WALL_POINTS:
+        A = np.array([[suu, suv, su], [suv, svv, sv], [su, sv, float(m)]])
+        if abs(np.linalg.det(A)) > 1e-300:
+            sol = np.linalg.solve(A, np.array([bu, bv, b1]))
+            if np.isfinite(sol[0]) and np.isfinite(sol[1]) and \
+                    np.sqrt(sol[0] ** 2 + sol[1] ** 2) <= sorted_percentile(np.sort(r0), 90.0):
+                cx, cy = sol[0], sol[1]
+    rho = np.sqrt((u - cx) ** 2 + (v - cy) ** 2)                               # [N] distance from the axis
     r90 = sorted_percentile(np.sort(rho), 90.0)
     if r90 <= 0.0:
         r90 = 1e-12
