@@ -2,7 +2,7 @@
 tabletop views with occluders and sensor noise (``equipose.train.data.occluded``).
 
     python -m equipose.train.evaluation.confidence --model sdk/models/mug-tabletop.onnx [--views 240] [--seed 0]
-        [--write] [--json F] [--plot F] [--data-root DIR] [--rows F] [--without F1,F2]
+        [--write] [--json F] [--plot F] [--data-root DIR] [--rows F] [--without F1,F2] [--flags-only] [--check]
 
 Each view runs through ``PoseEstimator.predict`` four times: box prompt (the visible mask's bounding box, as a
 detector gives it) and mask prompt, each without and with the up prior "plane". A pose is *right* when its rotation
@@ -11,6 +11,8 @@ is within 10° of the truth modulo the model's symmetry (mugs: full 6D; cans: un
 the views of even-numbered test shapes (its features chosen there by shape-grouped cross-validation: the selection
 margin alone, both margins, or all) and measured on the odd-numbered ones (shape-disjoint); ``--write`` stores
 the fitted model (and its held-out figures) as ``confidence_calibration`` in the model file and its int8 sibling.
+``--flags-only`` keeps the file's weights and chooses only its ambiguity flags again (``runner_up_margin``,
+``closed_top_cap``); ``--check`` scores the stored confidence on the views instead of fitting.
 ModelNet models (car, chair, ...) are fitted on their paper test set instead (``collect_modelnet``).
 
 Convention: angles in degrees, distances in metres, probabilities in [0, 1]; AUROC for "right" (1 = right ranked
@@ -32,7 +34,9 @@ from equipose.core.metadata import CONFIDENCE_FEATURES
 from equipose.eval.metrics import auroc
 from equipose.runtime.stages.confidence import below_runner_up, closed_top, logistic
 
-__all__ = ["RIGHT_DEG", "RIGHT_M", "RIGHT_DIAG", "collect", "occluded_views", "collect_modelnet", "fit_logistic", "auroc", "reliability", "summarize", "main"]
+__all__ = ["RIGHT_DEG", "RIGHT_M", "RIGHT_DIAG", "LYING_EVERY", "UPSIDE_DOWN_EVERY", "collect", "view_rest",
+           "occluded_views", "collect_modelnet", "fit_logistic", "auroc", "reliability", "summarize",
+           "runner_up_margin", "closed_top_cap", "flag_rows", "main"]
 
 RIGHT_DEG = 10.0        # a right pose: rotation error ≤ this (modulo symmetry) ...
 RIGHT_M = 0.02          # ... and centre error ≤ this (metres)

@@ -35,8 +35,8 @@ flagged ``ambiguous``: a pose more than 30° away explains the points about as w
 results were wrong at least half the time (``equipose.train.evaluation.confidence.runner_up_margin``; the shipped
 cup, bowl and mug files hold 0.05, can 0.03; absent: no such flag). Likewise a result whose ``top_cap`` reaches the
 calibration's ``closed_top_cap``: the posed top shows a closed bottom, so the object may stand the other way up, and
-on the fitting views such results were wrong at least ``CLOSED_TOP_WRONG`` of the time
-(``equipose.train.evaluation.confidence.closed_top_cap``; absent or 0: no such flag).
+on the fitting views at least 90 % of such results were wrong (``equipose.train.evaluation.confidence.closed_top_cap``;
+the shipped bowl file holds 0.05, mug 0.12, cup 0.2; absent or 0: no such flag).
 
 With ``confidence_calibration`` in the model file, ``confidence`` = σ(bias + Σ weight·feature): the estimated chance
 that the rotation is within 10° of the truth (modulo the symmetry) and the centre within 2 cm, fitted on rendered
