@@ -3,6 +3,7 @@ tabletop views with occluders and sensor noise (``equipose.train.data.occluded``
 
     python -m equipose.train.evaluation.confidence --model sdk/models/mug-tabletop.onnx [--views 240] [--seed 0]
         [--write] [--json F] [--plot F] [--data-root DIR] [--rows F] [--without F1,F2] [--flags-only] [--check]
+        [--standing-only]
 
 Each view runs through ``PoseEstimator.predict`` four times: box prompt (the visible mask's bounding box, as a
 detector gives it) and mask prompt, each without and with the up prior "plane". A pose is *right* when its rotation
@@ -55,7 +56,8 @@ def _truth_symmetry(est) -> tuple:
     return est.symmetry, est.metadata.get("shape_prior") == "cylinder"
 
 
-def collect(model, views: int, seed: int = 0, data_root=None, progress: bool = True) -> list:
+def collect(model, views: int, seed: int = 0, data_root=None, progress: bool = True,
+            upside_down: bool | None = None) -> list:
     """Rows of one model on ``views`` rendered occluded views × {box, mask} × {no up, up "plane"}.
 
     Convention: each row {"shape", "view", "prompt", "up", "rot_err" (deg), "axis_err" (deg, the up axis),
@@ -65,7 +67,8 @@ def collect(model, views: int, seed: int = 0, data_root=None, progress: bool = T
     test shapes of the model's tabletop category. Cylinders (``shape_prior`` "cylinder": cans) also rest on their
     side: every ``LYING_EVERY``-th view lies (``"rest"``: "lying", else "standing"), since a fallen can is as
     common on a table as a standing one; open containers (``TabletopSpec.upside_down``: cups, mugs, bowls) stand on
-    their opening in every ``UPSIDE_DOWN_EVERY``-th view (``"rest"``: "upside_down"), as they are put away."""
+    their opening in every ``UPSIDE_DOWN_EVERY``-th view (``"rest"``: "upside_down"), as they are put away
+    (``upside_down``: None = as the category's ``TabletopSpec`` says, False = never, as up to 0.40)."""
     from equipose import PoseEstimator
     from equipose.eval.metrics import rotation_errors
     from equipose.train.data.tabletop import TABLETOP, tabletop_sources
@@ -85,7 +88,8 @@ def collect(model, views: int, seed: int = 0, data_root=None, progress: bool = T
     rows = []
     for v, s, view, rest in occluded_views(sources, views, seed, est.metadata.get("shape_prior") == "cylinder", parts,
                                            desc=f"confidence {est.category}", progress=progress,
-                                           upside_down=TABLETOP[est.category].upside_down):
+                                           upside_down=TABLETOP[est.category].upside_down if upside_down is None
+                                           else upside_down):
         for prompt in ("box", "mask"):
             region = {"box": view.box} if prompt == "box" else {"mask": view.mask}
             for up in (None, "plane"):
@@ -463,6 +467,8 @@ def main(argv=None) -> int:
     ap.add_argument("--flags-only", dest="flags_only", action="store_true",
                     help="keep the file's stored weights and only re-choose its ambiguity flags (runner_up_margin, "
                          "closed_top_cap) on the fit rows")
+    ap.add_argument("--standing-only", dest="standing_only", action="store_true",
+                    help="render no open container upside down (the view set up to 0.40)")
     ap.add_argument("--check", action="store_true",
                     help="score the confidence the model file stores on these results instead of fitting a new one")
     a = ap.parse_args(argv)
@@ -472,7 +478,8 @@ def main(argv=None) -> int:
     else:
         from equipose.train.data.tabletop import TABLETOP
         est = PoseEstimator(a.model)
-        rows = collect(est, a.views, a.seed, a.data_root) if est.category in TABLETOP else \
+        rows = collect(est, a.views, a.seed, a.data_root, upside_down=False if a.standing_only else None) \
+            if est.category in TABLETOP else \
             collect_modelnet(est, a.data_root, limit=a.limit)
     if a.check:
         return _check(rows, a.model, a.json)
