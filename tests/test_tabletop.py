@@ -117,3 +117,15 @@ def test_calibration_views_rest_upside_down_on_both_halves_of_the_shapes():
     cans = [view_rest(v, 40, lying=True, upside_down=False) for v in range(9)]
     assert cans == ["lying" if v % LYING_EVERY == LYING_EVERY - 1 else "standing" for v in range(9)]   # as before
     assert set(view_rest(v, 20, lying=False, upside_down=False) for v in range(50)) == {"standing"}
+
+
+def test_the_rest_side_threshold_needs_ten_fixes_per_break():
+    from equipose.train.evaluation.rest_side import choose_cap
+    down = [{"rest": "upside_down", "own_up": -0.9, "top_cap": 0.2}] * 40 + [{"rest": "upside_down", "own_up": 0.9,
+                                                                              "top_cap": 0.2}] * 8
+    up = [{"rest": "standing", "own_up": -0.9, "top_cap": 0.09}] * 5 + [{"rest": "standing", "own_up": 0.9,
+                                                                         "top_cap": 0.0}] * 400
+    choice = choose_cap(down + up)
+    assert choice["cap"] == 0.1 and choice["fixes"] == 40 and choice["breaks"] == 0   # 0.05 / 0.08 break 5 of 405
+    assert choose_cap(up) is None
+    assert choose_cap(down + [{**r, "top_cap": 0.3} for r in up]) is None       # 40 fixes against 5 breaks

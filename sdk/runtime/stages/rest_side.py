@@ -1,0 +1,89 @@
+"""Stage ``rest_side`` (metadata ``upside_down_rest``): an open container under the up prior stood on its opening where
+both the network and the view say so.
+
+The up prior (stage ``upright``) holds the pose's axis on "up", the opening upwards: a bowl standing on its rim comes
+out upright, 180° off. This stage turns the pose over (a half turn about the category x axis through the centre)
+where two independent readings agree that it stands the other way up:
+- the network's own best hypothesis (lowest score, before the prior) has its up axis pointing down (cos < 0), and
+- the upright pose's top reads closed: ``equipose.core.opening.top_closure``'s ``cap`` reaches the file's ``cap``.
+
+``upside_down_rest`` JSON {"cap": c, ...} holds c, chosen on rendered views where the turn fixes at least ten times as
+many results as it breaks (``equipose.train.evaluation.rest_side``). Option ``cap``: "auto" (the file's; absent: the
+stage does not run), a share in (0, 1], or "read" (report the readings, never turn: what the fit collects). Result
+extras under a prior: ``rest_reading`` {"own_up": cos of the network's own axis with up, "top_cap": the upright
+pose's closed-top share}, and ``rest`` "upside_down" where it turned the pose.
+
+Convention: category frame, model units, centred camera frame; ``up`` a unit camera-frame direction.
+"""
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+
+from equipose.core.errors import ConfigError, MetadataError
+from equipose.core.geometry import nearest_rotation
+from equipose.core.opening import top_closure
+from equipose.runtime.stage import ObjectState, Stage, register_stage
+from equipose.runtime.upright import upright_icp
+
+__all__ = ["RestSideStage", "parse_upside_down_rest", "HALF_TURN_X"]
+
+HALF_TURN_X = np.diag([1.0, -1.0, -1.0])       # category frame: the opening (+z) turned down, x kept
+
+
+def parse_upside_down_rest(text, source: str = "model") -> dict | None:
+    """``upside_down_rest`` metadata (JSON string or dict) → the dict with ``cap`` a float in (0, 1], or None.
+    Raises ``MetadataError`` when malformed."""
+    if not text:
+        return None
+    try:
+        d = json.loads(text) if isinstance(text, str) else dict(text)
+        cap = float(d["cap"])
+    except (ValueError, KeyError, TypeError) as e:
+        raise MetadataError(f"{source}: malformed upside_down_rest metadata ({e}); re-run "
+                            "'python -m equipose.train.evaluation.rest_side --model ... --write'") from None
+    if not (math.isfinite(cap) and 0.0 < cap <= 1.0):
+        raise MetadataError(f"{source}: upside_down_rest cap must be a share in (0, 1], got {cap}")
+    return {**d, "cap": cap}
+
+
+@register_stage
+class RestSideStage(Stage):
+    name = "rest_side"
+    metadata_key = "upside_down_rest"
+    after = "cylinder"
+    options = {"cap": "auto"}
+
+    def __init__(self, cap: float | None):
+        self.cap = cap                                                          # None: read only
+
+    @classmethod
+    def build(cls, spec, options, context):
+        cap = options["cap"]
+        if isinstance(cap, str) and cap == "auto":
+            d = parse_upside_down_rest(spec.get(cls.metadata_key), spec.name)
+            return None if d is None else cls(d["cap"])
+        if isinstance(cap, str) and cap == "read":
+            return cls(None)
+        if isinstance(cap, bool) or not isinstance(cap, (int, float)) or not 0.0 < cap <= 1.0:
+            raise ConfigError(f"rest_side cap must be 'auto', 'read' or a share in (0, 1], got {cap!r}")
+        return cls(float(cap))
+
+    def describe(self) -> dict:
+        return {"cap": self.cap if self.cap is not None else "read"}
+
+    def run(self, state: ObjectState) -> None:
+        if state.up is None or state.rotation is None:
+            return
+        own = state.R[int(np.argmin(state.scores))]                            # [3, 3] the network's best, no prior
+        own_up = float(own[:, 2] @ state.up)
+        cap = top_closure(state.points, state.rotation[:, 2], state.translation).cap
+        state.extras["rest_reading"] = {"own_up": own_up, "top_cap": cap}
+        if self.cap is None or own_up >= 0.0 or cap < self.cap:
+            return
+        R, t, _ = upright_icp(state.points, state.canonical_category, (state.rotation @ HALF_TURN_X)[None],
+                              state.translation[None], -state.up)              # stood on its opening, refitted
+        state.set_pose(nearest_rotation(R[0]), t[0])
+        state.extras["rest"] = "upside_down"

@@ -1,0 +1,103 @@
+"""Fit the ``rest_side`` stage's threshold: when should the up prior stand an open container on its opening?
+
+    python -m equipose.train.evaluation.rest_side --model sdk/models/bowl-tabletop.onnx [--views 200] [--seed 0]
+        [--write] [--json F]
+
+Renders the confidence fit's tabletop views (``equipose.train.evaluation.confidence.occluded_views``, every
+``UPSIDE_DOWN_EVERY``-th view standing on its opening), predicts each with box and mask under ``up="plane"`` with the
+stage reading only (``stages={"rest_side": {"cap": "read"}}``), and chooses the lowest ``top_cap`` among
+``CANDIDATES`` at which turning the pose over (where the network's own axis points down) fixes at least ``RATIO`` times
+as many upside-down results as it breaks upright ones, and breaks at most ``MAX_BROKEN`` of them. ``--write`` stores
+{"cap", "fixes", "breaks", "fitted_on"} as ``upside_down_rest`` in the model file (and its int8 sibling); no threshold
+qualifying leaves the file as it is.
+
+Convention: shares in [0, 1]; the truth's rest from the rendering ("standing" | "upside_down").
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import pathlib
+import sys
+
+from equipose.core.errors import ConfigError, EquiposeError
+
+__all__ = ["CANDIDATES", "RATIO", "MAX_BROKEN", "collect_readings", "choose_cap", "main"]
+
+CANDIDATES = (0.05, 0.08, 0.1, 0.12, 0.15, 0.2)
+RATIO = 10.0            # fixes per break at least
+MAX_BROKEN = 0.01       # share of the upright results turned over at most
+
+
+def collect_readings(model, views: int, seed: int, data_root=None, progress: bool = True) -> list:
+    """Rows {"view", "prompt", "rest", "own_up", "top_cap"} of the stage's readings under ``up="plane"``."""
+    from equipose import PoseEstimator
+    from equipose.core.handles import handle_zone_mask
+    from equipose.train.data.modelnet import default_data_root
+    from equipose.train.data.tabletop import TABLETOP, tabletop_sources
+    from equipose.train.evaluation.confidence import occluded_views
+
+    est = PoseEstimator(model, stages={"rest_side": {"cap": "read"}})
+    if est.category not in TABLETOP or not TABLETOP[est.category].upside_down:
+        raise ConfigError(f"rest_side fits open containers ({', '.join(c for c, t in TABLETOP.items() if t.upside_down)}),"
+                          f" not {est.category!r}")
+    sources = tabletop_sources(data_root or default_data_root(), est.category, "test")
+    handle = est.metadata.get("handle")
+    parts = None if handle is None else [handle_zone_mask(s[1]["points"], s[1]["points"], handle) for s in sources]
+    rows = []
+    for v, _, view, rest in occluded_views(sources, views, seed, False, parts, desc=f"rest_side {est.category}",
+                                           progress=progress, upside_down=True):
+        for prompt in ("box", "mask"):
+            region = {"box": view.box} if prompt == "box" else {"mask": view.mask}
+            try:
+                r = est.predict(view.depth, view.K, depth_unit="mm", up="plane", **region)
+            except EquiposeError:
+                continue
+            reading = r.extras.get("rest_reading")
+            if reading is not None:
+                rows.append({"view": v, "prompt": prompt, "rest": rest, **reading})
+    return rows
+
+
+def choose_cap(rows: list) -> dict | None:
+    """{"cap", "fixes", "breaks", "upside_down", "standing"} for the lowest qualifying threshold, or None."""
+    down = [r for r in rows if r["rest"] == "upside_down"]
+    up = [r for r in rows if r["rest"] != "upside_down"]
+    if not down or not up:
+        return None
+    for c in CANDIDATES:
+        turns = lambda r: r["own_up"] < 0.0 and r["top_cap"] >= c          # noqa: E731
+        fixes, breaks = sum(map(turns, down)), sum(map(turns, up))
+        if fixes >= RATIO * breaks and breaks <= MAX_BROKEN * len(up) and fixes > 0:
+            return {"cap": c, "fixes": fixes, "breaks": breaks, "upside_down": len(down), "standing": len(up)}
+    return None
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--model", required=True)
+    ap.add_argument("--views", type=int, default=200)
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--data-root", dest="data_root")
+    ap.add_argument("--write", action="store_true")
+    ap.add_argument("--json", help="write the readings here")
+    a = ap.parse_args(argv)
+    rows = collect_readings(a.model, a.views, a.seed, a.data_root)
+    choice = choose_cap(rows)
+    if a.json:
+        pathlib.Path(a.json).write_text(json.dumps({"choice": choice, "rows": rows}, indent=1))
+    if choice is None:
+        print(f"{pathlib.Path(a.model).name}: no threshold turns ≥ {RATIO:g}× as many upside-down results right as "
+              f"it turns upright ones wrong; nothing written")
+        return 0
+    choice["fitted_on"] = f"{len(rows)} rendered occluded tabletop views under up='plane' (seed {a.seed})"
+    print(f"{pathlib.Path(a.model).name}: cap {choice['cap']}: fixes {choice['fixes']} of {choice['upside_down']} "
+          f"upside-down results, breaks {choice['breaks']} of {choice['standing']} upright ones")
+    if a.write:
+        from equipose.export.onnx_export import update_metadata_with_int8
+        update_metadata_with_int8(a.model, upside_down_rest=choice)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
