@@ -60,7 +60,7 @@ from equipose.core import icosahedral
 from equipose.core.errors import MetadataError, ModelVersionError
 
 __all__ = ["FORMAT_VERSION", "READABLE_FORMATS", "REQUIRED_KEYS", "FRAME_PRIOR_STEPS", "CONFIDENCE_FEATURES", "MAX_COPIES", "MAX_POLISH", "MAX_DENSIFY",
-           "encode_metadata", "decode_metadata", "encode_turn_classifier"]
+           "encode_metadata", "decode_metadata", "encode_turn_classifier", "float_entry"]
 
 FORMAT_VERSION = 3                                         # 2 for presets without quotient (vertex) layers
 READABLE_FORMATS = (1, 2, 3)                               # 1: kNN and hypothesis scores inside the graph
@@ -107,6 +107,19 @@ def encode_metadata(*, category: str, preset: str, model_config: dict, num_point
         "precision": "fp32",
     } | ({} if handle is None else {"handle": json.dumps({"direction": _unit_handle(handle, "handle").tolist()})}) \
       | ({} if shape_prior is None else {"shape_prior": _check_shape_prior(shape_prior, "shape_prior")})
+
+
+def float_entry(text, name: str, key: str, source: str, hint: str) -> dict | None:
+    """A JSON metadata entry ``name`` (string or dict; empty: None) → its dict with ``key`` read as a float. Raises
+    ``MetadataError`` naming the command that writes it (``hint``) when it is not JSON or ``key`` is missing."""
+    if not text:
+        return None
+    try:
+        d = json.loads(text) if isinstance(text, str) else dict(text)
+        value = float(d[key])
+    except (ValueError, KeyError, TypeError) as e:
+        raise MetadataError(f"{source}: malformed {name} metadata ({e}); re-run '{hint}'") from None
+    return {**d, key: value}
 
 
 SHAPE_PRIORS = ("cylinder", "open_cylinder")

@@ -13,12 +13,12 @@ Convention: model units, centred camera frame (the camera at ``−centre_m / sca
 """
 from __future__ import annotations
 
-import json
 import math
 
 import numpy as np
 
 from equipose.core.errors import ConfigError, MetadataError
+from equipose.core.metadata import float_entry
 from equipose.runtime.stage import ObjectState, Stage, register_stage
 
 __all__ = ["CentreStage", "MAX_OFFSET_M", "parse_centre_calibration"]
@@ -29,18 +29,15 @@ MAX_OFFSET_M = 0.05         # |offset| above this is no calibration of a partial
 def parse_centre_calibration(text, source: str = "model") -> dict | None:
     """``centre_calibration`` metadata (JSON string or dict) → the dict with ``along_ray_m`` a float, or None.
     Raises ``MetadataError`` when malformed."""
-    if not text:
+    d = float_entry(text, "centre_calibration", "along_ray_m", source,
+                    "python -m equipose.train.evaluation.centre --model ... --write")
+    if d is None:
         return None
-    try:
-        d = json.loads(text) if isinstance(text, str) else dict(text)
-        b = float(d["along_ray_m"])
-    except (ValueError, KeyError, TypeError) as e:
-        raise MetadataError(f"{source}: malformed centre_calibration metadata ({e}); re-run "
-                            "'python -m equipose.train.evaluation.centre --model ... --write'") from None
+    b = d["along_ray_m"]
     if not (math.isfinite(b) and abs(b) <= MAX_OFFSET_M):
         raise MetadataError(f"{source}: centre_calibration along_ray_m must be finite and within ±{MAX_OFFSET_M} m, "
                             f"got {b}")
-    return {**d, "along_ray_m": b}
+    return d
 
 
 @register_stage

@@ -17,13 +17,13 @@ Convention: category frame, model units, centred camera frame; ``up`` a unit cam
 """
 from __future__ import annotations
 
-import json
 import math
 
 import numpy as np
 
 from equipose.core.errors import ConfigError, MetadataError
 from equipose.core.geometry import nearest_rotation
+from equipose.core.metadata import float_entry
 from equipose.core.opening import top_closure
 from equipose.runtime.stage import ObjectState, Stage, register_stage
 from equipose.runtime.upright import upright_icp
@@ -36,17 +36,11 @@ HALF_TURN_X = np.diag([1.0, -1.0, -1.0])       # category frame: the opening (+z
 def parse_upside_down_rest(text, source: str = "model") -> dict | None:
     """``upside_down_rest`` metadata (JSON string or dict) → the dict with ``cap`` a float in (0, 1], or None.
     Raises ``MetadataError`` when malformed."""
-    if not text:
-        return None
-    try:
-        d = json.loads(text) if isinstance(text, str) else dict(text)
-        cap = float(d["cap"])
-    except (ValueError, KeyError, TypeError) as e:
-        raise MetadataError(f"{source}: malformed upside_down_rest metadata ({e}); re-run "
-                            "'python -m equipose.train.evaluation.rest_side --model ... --write'") from None
-    if not (math.isfinite(cap) and 0.0 < cap <= 1.0):
-        raise MetadataError(f"{source}: upside_down_rest cap must be a share in (0, 1], got {cap}")
-    return {**d, "cap": cap}
+    d = float_entry(text, "upside_down_rest", "cap", source,
+                    "python -m equipose.train.evaluation.rest_side --model ... --write")
+    if d is not None and not (math.isfinite(d["cap"]) and 0.0 < d["cap"] <= 1.0):
+        raise MetadataError(f"{source}: upside_down_rest cap must be a share in (0, 1], got {d['cap']}")
+    return d
 
 
 @register_stage
