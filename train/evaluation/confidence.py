@@ -34,9 +34,10 @@ from equipose.core.errors import ConfigError, EquiposeError
 from equipose.core.metadata import CONFIDENCE_FEATURES
 from equipose.eval.metrics import auroc
 from equipose.runtime.stages.confidence import below_runner_up, closed_top, logistic
+from equipose.runtime.stages.rest_side import HALF_TURN_X
 
 __all__ = ["RIGHT_DEG", "RIGHT_M", "RIGHT_DIAG", "LYING_EVERY", "UPSIDE_DOWN_EVERY", "collect", "view_rest",
-           "occluded_views", "collect_modelnet", "fit_logistic", "auroc", "reliability", "summarize",
+           "handle_parts", "occluded_views", "collect_modelnet", "fit_logistic", "auroc", "reliability", "summarize",
            "runner_up_margin", "closed_top_cap", "flag_rows", "main"]
 
 RIGHT_DEG = 10.0        # a right pose: rotation error ≤ this (modulo symmetry) ...
@@ -81,10 +82,7 @@ def collect(model, views: int, seed: int = 0, data_root=None, progress: bool = T
     sources = tabletop_sources(data_root or default_data_root(), est.category, "test")
     symmetry, unsigned = _truth_symmetry(est)
     handle = est.metadata.get("handle")
-    parts = [None] * len(sources)
-    if handle is not None:                                                     # each shape's own handle points
-        from equipose.core.handles import handle_zone_mask
-        parts = [handle_zone_mask(src[1]["points"], src[1]["points"], handle) for src in sources]
+    parts = handle_parts(est, sources)
     rows = []
     for v, s, view, rest in occluded_views(sources, views, seed, est.metadata.get("shape_prior") == "cylinder", parts,
                                            desc=f"confidence {est.category}", progress=progress,
@@ -113,6 +111,16 @@ def collect(model, views: int, seed: int = 0, data_root=None, progress: bool = T
     return rows
 
 
+def handle_parts(est, sources: list) -> list | None:
+    """[each source's handle-zone points (bool over its points)] for a model with a ``handle`` (mugs), else None: the
+    part whose visible pixels the renders count (``OccludedView.part_pixels``)."""
+    handle = est.metadata.get("handle")
+    if handle is None:
+        return None
+    from equipose.core.handles import handle_zone_mask
+    return [handle_zone_mask(src[1]["points"], src[1]["points"], handle) for src in sources]
+
+
 def view_rest(v: int, count: int, lying: bool, upside_down: bool) -> str:
     """How the ``v``-th calibration view over ``count`` sources rests: "lying" (cylinders, ``lying``: every
     ``LYING_EVERY``-th view), "upside_down" (open containers, ``upside_down``: every ``UPSIDE_DOWN_EVERY``-th, the
@@ -136,7 +144,7 @@ def occluded_views(sources: list, views: int, seed: int, lying: bool, parts: lis
 
     from equipose.train.data.occluded import render_occluded
     turns = {"lying": np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]]),   # 90° about x: axis level
-             "upside_down": np.diag([1.0, -1.0, -1.0])}                                # 180° about x
+             "upside_down": HALF_TURN_X}                                                # 180° about x
     parts = [None] * len(sources) if parts is None else parts
     for v in tqdm(range(views), desc=desc, disable=not progress):
         s = v % len(sources)

@@ -32,18 +32,16 @@ MAX_BROKEN = 0.01       # share of the upright results turned over at most
 def collect_readings(model, views: int, seed: int, data_root=None, progress: bool = True) -> list:
     """Rows {"view", "prompt", "rest", "own_up", "top_cap"} of the stage's readings under ``up="plane"``."""
     from equipose import PoseEstimator
-    from equipose.core.handles import handle_zone_mask
     from equipose.train.data.modelnet import default_data_root
     from equipose.train.data.tabletop import TABLETOP, tabletop_sources
-    from equipose.train.evaluation.confidence import occluded_views
+    from equipose.train.evaluation.confidence import handle_parts, occluded_views
 
     est = PoseEstimator(model, stages={"rest_side": {"cap": "read"}})
     if est.category not in TABLETOP or not TABLETOP[est.category].upside_down:
         raise ConfigError(f"rest_side fits open containers ({', '.join(c for c, t in TABLETOP.items() if t.upside_down)}),"
                           f" not {est.category!r}")
     sources = tabletop_sources(data_root or default_data_root(), est.category, "test")
-    handle = est.metadata.get("handle")
-    parts = None if handle is None else [handle_zone_mask(s[1]["points"], s[1]["points"], handle) for s in sources]
+    parts = handle_parts(est, sources)
     rows = []
     for v, _, view, rest in occluded_views(sources, views, seed, False, parts, desc=f"rest_side {est.category}",
                                            progress=progress, upside_down=True):

@@ -2,8 +2,9 @@
 both the network and the view say so.
 
 The up prior (stage ``upright``) holds the pose's axis on "up", the opening upwards: a bowl standing on its rim comes
-out upright, 180° off. This stage turns the pose over (a half turn about the category x axis through the centre)
-where two independent readings agree that it stands the other way up:
+out upright, 180° off. This stage turns the pose over (a half turn about the category x axis) and refits its azimuth
+and centre with the axis held on "down" (``equipose.runtime.upright.upright_icp``) where two independent readings
+agree that it stands the other way up:
 - the network's own best hypothesis (lowest score, before the prior) has its up axis pointing down (cos < 0), and
 - the upright pose's top reads closed: ``equipose.core.opening.top_closure``'s ``cap`` reaches the file's ``cap``.
 
