@@ -169,6 +169,49 @@ def test_the_closed_top_share_is_fitted_where_closed_tops_are_mostly_wrong():
     assert [r["ambiguous"] for r in flagged[-10:]] == [1.0] * 10 and "ambiguous" not in flagged[0]
 
 
+def test_own_axis_turn_reads_how_far_the_stages_turned_the_networks_axis():
+    """0 where the pose keeps the axis of the network's best hypothesis, 1 where it was turned over (the up prior
+    holding a cup upright that the network saw standing on its opening), 0.5 for a quarter turn."""
+    x = cup_view_points(seed=2)
+    for turn, expected in ((np.eye(3), 0.0), (np.diag([1.0, -1.0, -1.0]), 1.0),
+                           (Rotation.from_euler("x", 90, degrees=True).as_matrix(), 0.5)):
+        state = posed_state(x, np.eye(3), np.zeros(3))
+        state.set_pose(turn)                                                     # the stages' pose; state.R the network's
+        assert evidence(state)["own_axis_turn"] == pytest.approx(expected, abs=1e-9)
+
+
+def test_a_closed_top_the_network_saw_turned_over_flags_a_result_under_the_up_prior():
+    """Under an up prior, a pose whose axis the network had the other way up (own_axis_turn > TURNED) and whose top
+    reads closed at or above ``turned_top_cap`` is flagged ``ambiguous``; without the prior, with the network's own
+    axis kept, or without the key, it is not."""
+    from equipose.runtime.stages.confidence import TURNED, turned_closed_top
+    x = cup_view_points(seed=4, upside_down=True)                              # standing on its opening
+    cal = {"features": ("margin",), "weights": np.array([1.0]), "bias": 0.0, "turned_top_cap": 0.02}
+    flipped = np.diag([1.0, -1.0, -1.0])
+    for c, up, own, flagged in ((cal, True, flipped, True), (cal, False, flipped, False), (cal, True, np.eye(3), False),
+                                ({**cal, "turned_top_cap": 0.0}, True, flipped, False)):
+        state = posed_state(x, own, np.array([0.0, 0.0, 0.5]), up=[0.0, 0.0, 1.0] if up else None)
+        state.set_pose(np.eye(3))                                               # held upright
+        state.confidence, state.ambiguous = 0.5, False
+        ConfidenceStage(c).run(state)
+        assert state.ambiguous is flagged, (up, own[2, 2], c)
+    assert TURNED == 0.5 and not turned_closed_top(0.5, 1.0, True, None)
+
+
+def test_the_turned_top_share_is_fitted_where_turned_closed_tops_are_wrong_half_the_time():
+    from equipose.train.evaluation.confidence import flag_rows, turned_top_cap
+    base = {"margin": 0.5, "up_given": 1.0, "own_axis_turn": 1.0}
+    rows = [{**base, "top_cap": 0.025, "right": i % 4 > 0} for i in range(20)]            # 25 % wrong
+    rows += [{**base, "top_cap": 0.06, "right": i % 2 == 0} for i in range(10)]          # half wrong
+    rows += [{**base, "top_cap": 0.06, "own_axis_turn": 0.0, "right": True} for _ in range(40)]  # network agreed
+    rows += [{**base, "top_cap": 0.06, "up_given": 0.0, "right": True} for _ in range(40)]       # no prior
+    assert turned_top_cap(rows) == 0.03                                        # the lowest with ≥ half wrong
+    assert turned_top_cap([{**r, "right": True} for r in rows]) == 0.0
+    flagged = flag_rows(rows, {"turned_top_cap": 0.03})
+    assert [r.get("ambiguous") for r in flagged[20:30]] == [1.0] * 10
+    assert all("ambiguous" not in r for r in flagged[:20] + flagged[30:])
+
+
 def test_calibration_metadata_round_trip_and_errors(tiny_model, tmp_path):
     from equipose.export.onnx_export import update_metadata
     path = tmp_path / "m.onnx"

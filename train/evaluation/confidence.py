@@ -33,7 +33,7 @@ from scipy.optimize import minimize
 from equipose.core.errors import ConfigError, EquiposeError
 from equipose.core.metadata import CONFIDENCE_FEATURES
 from equipose.eval.metrics import auroc
-from equipose.runtime.stages.confidence import below_runner_up, closed_top, logistic
+from equipose.runtime.stages.confidence import TURNED, below_runner_up, closed_top, logistic, turned_closed_top
 from equipose.runtime.stages.rest_side import HALF_TURN_X
 
 __all__ = ["RIGHT_DEG", "RIGHT_M", "RIGHT_DIAG", "LYING_EVERY", "UPSIDE_DOWN_EVERY", "collect", "view_rest",
@@ -196,9 +196,11 @@ def collect_modelnet(model, data_root=None, cache_dir=None, limit: int | None = 
 MONOTONE = ("margin", "flip_margin", "axis_ratio", "top_taper", "bottom_cap")   # a larger margin, a body widening
                                                         # towards the posed opening or a closed posed bottom never
                                                         # lowers the confidence
-AGAINST = ("plane_tilt", "plane_float", "plane_sink", "plane_rest", "top_cap")   # a pose tilted on, floating above,
-                                                        # sunk into or leaning on its support plane, or whose opening
-                                                        # shows a closed bottom, is never more likely right
+AGAINST = ("plane_tilt", "plane_float", "plane_sink", "plane_rest", "top_cap", "own_axis_turn")   # a pose tilted
+                                                        # on, floating above, sunk into or leaning on its support
+                                                        # plane, whose opening shows a closed bottom, or whose axis
+                                                        # a stage turned away from the network's own, is never more
+                                                        # likely right
 
 
 def _columns(features, names) -> list:
@@ -349,11 +351,31 @@ def closed_top_cap(rows: list) -> float:
     return 0.0
 
 
+TURNED_TOP_CANDIDATES = (0.02, 0.03, 0.05, 0.08, 0.1, 0.12, 0.15, 0.2)   # top_cap thresholds tried, lowest first
+
+
+def turned_top_cap(rows: list) -> float:
+    """The lowest ``top_cap`` at or above which the results under an up prior whose axis the network had the other
+    way up (``own_axis_turn`` > ``TURNED``) are wrong at least half the time (at least ``RUNNER_UP_MIN_RESULTS`` of
+    them), else 0: the confidence stage flags such results ``ambiguous`` (``turned_closed_top``). Rows need
+    "up_given", "own_axis_turn", "top_cap" and "right"."""
+    rows = [r for r in rows if r.get("up_given") and r.get("own_axis_turn", 0.0) > TURNED]
+    cap = np.array([r["top_cap"] for r in rows], np.float64)                  # [n]
+    wrong = ~np.array([bool(r["right"]) for r in rows], bool)                  # [n]
+    for t in TURNED_TOP_CANDIDATES:
+        above = cap >= t
+        if above.sum() >= RUNNER_UP_MIN_RESULTS and wrong[above].mean() >= 0.5:
+            return t
+    return 0.0
+
+
 def flag_rows(rows: list, calibration: dict) -> list:
     """Copies of ``rows`` with "ambiguous" set where the confidence stage would flag them under ``calibration``
-    (``runner_up_margin``, ``closed_top_cap``) before it reads the evidence."""
+    (``runner_up_margin``, ``closed_top_cap``, ``turned_top_cap``) before it reads the evidence."""
     return [dict(r, ambiguous=1.0) if below_runner_up(r["margin"], calibration)
-            or closed_top(r.get("top_cap", 0.0), calibration) else dict(r) for r in rows]
+            or closed_top(r.get("top_cap", 0.0), calibration)
+            or turned_closed_top(r.get("top_cap", 0.0), r.get("own_axis_turn", 0.0), bool(r.get("up_given")),
+                                 calibration) else dict(r) for r in rows]
 
 
 def calibrate(rows: list, features=CONFIDENCE_FEATURES) -> tuple:
@@ -362,7 +384,7 @@ def calibrate(rows: list, features=CONFIDENCE_FEATURES) -> tuple:
     held-out ones with "p"). The flags (``runner_up_margin``, ``closed_top_cap``) and the features
     (``choose_features``) are chosen on the fit rows alone; ``rows`` themselves are left as they are."""
     flags = {"runner_up_margin": runner_up_margin(split_rows(rows)[0]),
-             "closed_top_cap": closed_top_cap(split_rows(rows)[0])}
+             "closed_top_cap": closed_top_cap(split_rows(rows)[0]), "turned_top_cap": turned_top_cap(split_rows(rows)[0])}
     rows = flag_rows(rows, flags)
     fit, held = split_rows(rows)
     if not fit or not held:
@@ -450,9 +472,10 @@ def _refresh_flags(rows: list, model: str, write: bool) -> int:
     fit = split_rows(rows)[0]
     meta = {**stored, "features": list(stored["features"]), "weights": [float(w) for w in stored["weights"]],
             "runner_up_margin": runner_up_margin(fit), "closed_top_cap": closed_top_cap(fit),
-            "flags_chosen_on": f"{len(fit)} rendered occluded tabletop views (even-numbered shapes); weights as fitted"}
+            "turned_top_cap": turned_top_cap(fit), "flags_chosen_on": f"{len(fit)} rendered occluded tabletop views (even-numbered shapes); weights as fitted"}
     print(f"{pathlib.Path(model).name}: runner_up_margin {stored.get('runner_up_margin', 0.0)} → "
-          f"{meta['runner_up_margin']}, closed_top_cap {stored.get('closed_top_cap', 0.0)} → {meta['closed_top_cap']} "
+          f"{meta['runner_up_margin']}, closed_top_cap {stored.get('closed_top_cap', 0.0)} → {meta['closed_top_cap']}, "
+          f"turned_top_cap {stored.get('turned_top_cap', 0.0)} → {meta['turned_top_cap']} "
           f"(chosen on {len(fit)} results; weights kept)")
     if write:
         from equipose.export.onnx_export import update_metadata_with_int8

@@ -28,7 +28,11 @@ of the object was seen —
   closed (``equipose.core.opening.top_closure`` of the input points along the posed axis through the pose's centre):
   the share of points near the axis at the very top (a cup's closed bottom, seen when it stands upside down and is
   posed upright), the same at the posed bottom (seen when it stands upside down and is posed so), and how much the
-  body widens towards the posed top.
+  body widens towards the posed top;
+- ``own_axis_turn``: (1 − cos φ) / 2 for the angle φ between the reported pose's up axis (category z) and that of the
+  network's own best hypothesis (the lowest score, before any prior): 0 where the stages kept the network's axis,
+  1 where the up prior (or another stage) turned it over — a cup the network saw standing on its opening, held
+  upright by ``up="plane"``.
 
 Before the evidence is read, a result whose selection margin is below the calibration's ``runner_up_margin`` is
 flagged ``ambiguous``: a pose more than 30° away explains the points about as well, and on the fitting views such
@@ -36,7 +40,10 @@ results were wrong at least half the time (``equipose.train.evaluation.confidenc
 cup, bowl and mug files hold 0.05, can 0.03; absent: no such flag). Likewise a result whose ``top_cap`` reaches the
 calibration's ``closed_top_cap``: the posed top shows a closed bottom, so the object may stand the other way up, and
 on the fitting views at least 90 % of such results were wrong (``equipose.train.evaluation.confidence.closed_top_cap``;
-the shipped bowl file holds 0.05, mug 0.12, cup 0.2; absent or 0: no such flag).
+the shipped mug file holds 0.12, cup 0.2; absent or 0: no such flag). Under an up prior, a result whose
+``own_axis_turn`` exceeds ``TURNED`` (the network had the object the other way up) and whose ``top_cap`` reaches the
+calibration's ``turned_top_cap`` is flagged too: at least half of such results on the fitting views were wrong
+(``equipose.train.evaluation.confidence.turned_top_cap``; the shipped cup file holds 0.02, mug 0.1).
 
 With ``confidence_calibration`` in the model file, ``confidence`` = σ(bias + Σ weight·feature): the estimated chance
 that the rotation is within 10° of the truth (modulo the symmetry) and the centre within 2 cm, fitted on rendered
@@ -56,10 +63,12 @@ from equipose.core.opening import top_closure
 from equipose.runtime.stages.cylinder import AXIS_RATIO_CLIP
 from equipose.runtime.stage import ObjectState, Stage, register_stage
 
-__all__ = ["ConfidenceStage", "FAR", "evidence", "logistic", "below_runner_up", "closed_top"]
+__all__ = ["ConfidenceStage", "FAR", "TURNED", "evidence", "logistic", "below_runner_up", "closed_top",
+           "turned_closed_top"]
 
 FAR = 0.25          # RMS radii: a point farther than this from the other set is unexplained / unseen
 CONTACT_CLIP = 2.0  # RMS radii: plane_float / plane_sink saturate here
+TURNED = 0.5        # own_axis_turn above this: the network had the axis more than 90° away
 
 
 def logistic(z):
@@ -72,6 +81,15 @@ def below_runner_up(margin: float, calibration: dict | None) -> bool:
     ``confidence_calibration`` entry, or None): its margin lies below the entry's ``runner_up_margin``, so a pose more
     than 30° away explains the points about as well. The stage and the calibration's fit both apply this rule."""
     return calibration is not None and margin < calibration.get("runner_up_margin", 0.0)
+
+
+def turned_closed_top(top_cap: float, own_axis_turn: float, up_given: bool, calibration: dict | None) -> bool:
+    """Whether a result is flagged ``ambiguous`` under ``calibration``'s ``turned_top_cap``: an up prior was given,
+    the network's own best hypothesis had the object the other way up (``own_axis_turn`` > ``TURNED``) and the posed
+    top shows a closed bottom at least that clearly — two readings that the object may stand on its opening. The
+    stage and the calibration's fit both apply this rule."""
+    t = 0.0 if calibration is None else float(calibration.get("turned_top_cap", 0.0) or 0.0)
+    return t > 0.0 and up_given and own_axis_turn > TURNED and top_cap >= t
 
 
 def closed_top(top_cap: float, calibration: dict | None) -> bool:
@@ -121,7 +139,15 @@ def evidence(state: ObjectState) -> dict:
         "top_cap": ends.cap,
         "bottom_cap": ends.bottom,
         "top_taper": ends.taper,
+        "own_axis_turn": _own_axis_turn(state),
     }
+
+
+def _own_axis_turn(state: ObjectState) -> float:
+    """(1 − cos φ) / 2 between the pose's category z axis and the network's best hypothesis' (``state.R`` at the
+    lowest score; the category frame once calibrated, as the pose)."""
+    own = state.R[int(np.argmin(state.scores))]                                 # [3, 3]
+    return float(np.clip(0.5 * (1.0 - float(own[:, 2] @ state.rotation[:, 2])), 0.0, 1.0))
 
 
 def _plane_gap(state: ObjectState, posed: np.ndarray, rms: float) -> float:
@@ -162,7 +188,8 @@ class ConfidenceStage(Stage):
         if below_runner_up(state.confidence, c):                               # a pose > 30° away fits as well
             state.ambiguous = True
         ev = evidence(state)
-        if closed_top(ev["top_cap"], c):                                        # it may stand the other way up
+        if closed_top(ev["top_cap"], c) or turned_closed_top(ev["top_cap"], ev["own_axis_turn"], state.up is not None,
+                                                             c):                # it may stand the other way up
             state.ambiguous = True
             ev["ambiguous"] = 1.0
         state.extras["evidence"] = {k: round(v, 6) for k, v in ev.items()}
