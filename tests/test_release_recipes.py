@@ -142,7 +142,8 @@ def test_kept_confidence_weights_refresh_only_the_flags():
         step = [s for s in plan(r, state="-", skip_eval=True) if "equipose.train.evaluation.confidence" in s.argv][0]
         assert ("--flags-only" in step.argv) is keep
         cal = json.loads(_metadata(name)["confidence_calibration"])
-        assert ("flags_chosen_on" in cal) is keep and {"runner_up_margin", "closed_top_cap", "turned_top_cap"} <= set(cal)
+        assert ("flags_chosen_on" in cal) is keep and {"runner_up_margin", "closed_top_cap", "turned_top_cap",
+                                                            "open_bottom_cap"} <= set(cal)
         # the bowl's closed tops are turned over by its rest_side stage first, so no closed-top flag qualified for it
         assert (cal["closed_top_cap"] > 0) is (name != "bowl-tabletop")
 

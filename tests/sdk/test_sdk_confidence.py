@@ -212,6 +212,40 @@ def test_the_turned_top_share_is_fitted_where_turned_closed_tops_are_wrong_half_
     assert all("ambiguous" not in r for r in flagged[:20] + flagged[30:])
 
 
+def test_an_open_end_facing_up_flags_a_pose_that_stands_the_object_on_its_opening():
+    """A pose upside down on the support plane (``plane_tilt`` > 0.5) whose end facing up reads open (``bottom_cap``
+    below ``open_bottom_cap``) is flagged ``ambiguous``; an upright pose, a closed end facing up, or no key are not."""
+    from equipose.runtime.stages.confidence import open_bottom_up
+    cal = {"open_bottom_cap": 0.1}
+    assert open_bottom_up(1.0, 0.02, cal) and open_bottom_up(0.6, 0.0, cal)
+    assert not open_bottom_up(0.0, 0.02, cal) and not open_bottom_up(1.0, 0.15, cal)
+    assert not open_bottom_up(1.0, 0.02, {"open_bottom_cap": 0.0}) and not open_bottom_up(1.0, 0.02, None)
+    x = cup_view_points(seed=3)                                                 # upright, open top
+    flipped = np.diag([1.0, -1.0, -1.0])
+    for c, flagged in (({"features": ("margin",), "weights": np.array([1.0]), "bias": 0.0, **cal}, True),
+                       ({"features": ("margin",), "weights": np.array([1.0]), "bias": 0.0}, False)):
+        state = posed_state(x, flipped, np.array([0.0, 0.0, 0.5]), canonical=(x - [0.0, 0.0, 0.5]) @ flipped)
+        state.support_up, state.support_offset = np.array([0.0, 0.0, 1.0]), 1.0      # the table under it, normal +z
+        state.confidence, state.ambiguous = 0.5, False
+        ConfidenceStage(c).run(state)
+        ev = state.extras["evidence"]
+        assert ev["plane_tilt"] > 0.5 and ev["bottom_cap"] < 0.1
+        assert state.ambiguous is flagged
+
+
+def test_the_open_bottom_share_is_fitted_where_open_ends_facing_up_are_mostly_wrong():
+    from equipose.train.evaluation.confidence import flag_rows, open_bottom_cap
+    base = {"margin": 0.5, "plane_tilt": 1.0}
+    rows = [{**base, "bottom_cap": 0.11, "right": i % 2 == 0} for i in range(10)]          # half wrong
+    rows += [{**base, "bottom_cap": 0.04, "right": i % 10 == 0} for i in range(20)]        # 90 % wrong
+    rows += [{**base, "bottom_cap": 0.04, "plane_tilt": 0.0, "right": True} for _ in range(20)]  # posed upright
+    assert open_bottom_cap(rows) == 0.1                                        # the highest with ≥ 90 % wrong
+    assert open_bottom_cap([{**r, "right": True} for r in rows]) == 0.0
+    flagged = flag_rows(rows, {"open_bottom_cap": 0.1})
+    assert [r.get("ambiguous") for r in flagged[10:30]] == [1.0] * 20
+    assert all("ambiguous" not in r for r in flagged[:10] + flagged[30:])
+
+
 def test_calibration_metadata_round_trip_and_errors(tiny_model, tmp_path):
     from equipose.export.onnx_export import update_metadata
     path = tmp_path / "m.onnx"

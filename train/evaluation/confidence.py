@@ -33,7 +33,8 @@ from scipy.optimize import minimize
 from equipose.core.errors import ConfigError, EquiposeError
 from equipose.core.metadata import CONFIDENCE_FEATURES
 from equipose.eval.metrics import auroc
-from equipose.runtime.stages.confidence import TURNED, below_runner_up, closed_top, logistic, turned_closed_top
+from equipose.runtime.stages.confidence import (TURNED, below_runner_up, closed_top, logistic, open_bottom_up,
+                                                turned_closed_top)
 from equipose.runtime.stages.rest_side import HALF_TURN_X
 
 __all__ = ["RIGHT_DEG", "RIGHT_M", "RIGHT_DIAG", "LYING_EVERY", "UPSIDE_DOWN_EVERY", "collect", "view_rest",
@@ -369,22 +370,44 @@ def turned_top_cap(rows: list) -> float:
     return 0.0
 
 
+OPEN_BOTTOM_CANDIDATES = (0.12, 0.1, 0.08, 0.05, 0.03, 0.02)   # bottom_cap thresholds tried, highest first
+
+
+def open_bottom_cap(rows: list) -> float:
+    """The highest ``bottom_cap`` below which the results posed on their opening on the support plane
+    (``plane_tilt`` > 0.5) are wrong at least ``CLOSED_TOP_WRONG`` of the time (at least ``RUNNER_UP_MIN_RESULTS`` of
+    them), else 0: the end facing up reads open, so the object may stand the other way up, and the confidence stage
+    flags such results ``ambiguous`` (``open_bottom_up``). Rows need "plane_tilt", "bottom_cap" and "right"."""
+    rows = [r for r in rows if r.get("plane_tilt", 0.0) > 0.5 and "bottom_cap" in r]
+    cap = np.array([r["bottom_cap"] for r in rows], np.float64)               # [n]
+    wrong = ~np.array([bool(r["right"]) for r in rows], bool)                  # [n]
+    for t in OPEN_BOTTOM_CANDIDATES:
+        below = cap < t
+        if below.sum() >= RUNNER_UP_MIN_RESULTS and wrong[below].mean() >= CLOSED_TOP_WRONG:
+            return t
+    return 0.0
+
+
 def flag_rows(rows: list, calibration: dict) -> list:
     """Copies of ``rows`` with "ambiguous" set where the confidence stage would flag them under ``calibration``
-    (``runner_up_margin``, ``closed_top_cap``, ``turned_top_cap``) before it reads the evidence."""
+    (``runner_up_margin``, ``closed_top_cap``, ``turned_top_cap``, ``open_bottom_cap``) before it reads the
+    evidence."""
     return [dict(r, ambiguous=1.0) if below_runner_up(r["margin"], calibration)
             or closed_top(r.get("top_cap", 0.0), calibration)
             or turned_closed_top(r.get("top_cap", 0.0), r.get("own_axis_turn", 0.0), bool(r.get("up_given")),
-                                 calibration) else dict(r) for r in rows]
+                                 calibration)
+            or open_bottom_up(r.get("plane_tilt", 0.0), r.get("bottom_cap", 1.0), calibration) else dict(r)
+            for r in rows]
 
 
 def calibrate(rows: list, features=CONFIDENCE_FEATURES) -> tuple:
     """(metadata dict for ``confidence_calibration``, held-out summary, the rows as fitted: copies of ``rows``, those
-    below the runner-up margin or above the closed-top share flagged ``ambiguous`` as the stage will flag them, the
-    held-out ones with "p"). The flags (``runner_up_margin``, ``closed_top_cap``) and the features
+    the stage will flag (``flag_rows``) flagged ``ambiguous``, the held-out ones with "p"). The flags
+    (``runner_up_margin``, ``closed_top_cap``, ``turned_top_cap``, ``open_bottom_cap``) and the features
     (``choose_features``) are chosen on the fit rows alone; ``rows`` themselves are left as they are."""
     flags = {"runner_up_margin": runner_up_margin(split_rows(rows)[0]),
-             "closed_top_cap": closed_top_cap(split_rows(rows)[0]), "turned_top_cap": turned_top_cap(split_rows(rows)[0])}
+             "closed_top_cap": closed_top_cap(split_rows(rows)[0]),
+             "turned_top_cap": turned_top_cap(split_rows(rows)[0]), "open_bottom_cap": open_bottom_cap(split_rows(rows)[0])}
     rows = flag_rows(rows, flags)
     fit, held = split_rows(rows)
     if not fit or not held:
@@ -472,10 +495,11 @@ def _refresh_flags(rows: list, model: str, write: bool) -> int:
     fit = split_rows(rows)[0]
     meta = {**stored, "features": list(stored["features"]), "weights": [float(w) for w in stored["weights"]],
             "runner_up_margin": runner_up_margin(fit), "closed_top_cap": closed_top_cap(fit),
-            "turned_top_cap": turned_top_cap(fit), "flags_chosen_on": f"{len(fit)} rendered occluded tabletop views (even-numbered shapes); weights as fitted"}
+            "turned_top_cap": turned_top_cap(fit), "open_bottom_cap": open_bottom_cap(fit), "flags_chosen_on": f"{len(fit)} rendered occluded tabletop views (even-numbered shapes); weights as fitted"}
     print(f"{pathlib.Path(model).name}: runner_up_margin {stored.get('runner_up_margin', 0.0)} → "
           f"{meta['runner_up_margin']}, closed_top_cap {stored.get('closed_top_cap', 0.0)} → {meta['closed_top_cap']}, "
-          f"turned_top_cap {stored.get('turned_top_cap', 0.0)} → {meta['turned_top_cap']} "
+          f"turned_top_cap {stored.get('turned_top_cap', 0.0)} → {meta['turned_top_cap']}, "
+          f"open_bottom_cap {stored.get('open_bottom_cap', 0.0)} → {meta['open_bottom_cap']} "
           f"(chosen on {len(fit)} results; weights kept)")
     if write:
         from equipose.export.onnx_export import update_metadata_with_int8

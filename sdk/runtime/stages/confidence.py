@@ -43,7 +43,11 @@ on the fitting views at least 90 % of such results were wrong (``equipose.train.
 the shipped mug file holds 0.12, cup 0.2; absent or 0: no such flag). Under an up prior, a result whose
 ``own_axis_turn`` exceeds ``TURNED`` (the network had the object the other way up) and whose ``top_cap`` reaches the
 calibration's ``turned_top_cap`` is flagged too: at least half of such results on the fitting views were wrong
-(``equipose.train.evaluation.confidence.turned_top_cap``; the shipped cup file holds 0.02, mug 0.1).
+(``equipose.train.evaluation.confidence.turned_top_cap``; the shipped cup file holds 0.02, mug 0.1). The mirror case:
+a pose that stands the object on its opening on the support plane (``plane_tilt`` > 0.5) while the end it calls the
+bottom, facing up, reads open (``bottom_cap`` below the calibration's ``open_bottom_cap``) is flagged as well; at
+least 90 % of such fitting results were wrong (``equipose.train.evaluation.confidence.open_bottom_cap``; the
+shipped cup, mug and bowl files hold 0.12).
 
 With ``confidence_calibration`` in the model file, ``confidence`` = σ(bias + Σ weight·feature): the estimated chance
 that the rotation is within 10° of the truth (modulo the symmetry) and the centre within 2 cm, fitted on rendered
@@ -64,7 +68,7 @@ from equipose.runtime.stages.cylinder import AXIS_RATIO_CLIP
 from equipose.runtime.stage import ObjectState, Stage, register_stage
 
 __all__ = ["ConfidenceStage", "FAR", "TURNED", "evidence", "logistic", "below_runner_up", "closed_top",
-           "turned_closed_top"]
+           "turned_closed_top", "open_bottom_up"]
 
 FAR = 0.25          # RMS radii: a point farther than this from the other set is unexplained / unseen
 CONTACT_CLIP = 2.0  # RMS radii: plane_float / plane_sink saturate here
@@ -90,6 +94,15 @@ def turned_closed_top(top_cap: float, own_axis_turn: float, up_given: bool, cali
     stage and the calibration's fit both apply this rule."""
     t = 0.0 if calibration is None else float(calibration.get("turned_top_cap", 0.0) or 0.0)
     return t > 0.0 and up_given and own_axis_turn > TURNED and top_cap >= t
+
+
+def open_bottom_up(plane_tilt: float, bottom_cap: float, calibration: dict | None) -> bool:
+    """Whether a result is flagged ``ambiguous`` under ``calibration``'s ``open_bottom_cap``: the pose stands the object
+    on its opening on the support plane (``plane_tilt`` > 0.5) while the end it calls the bottom, the one facing up,
+    reads open (``bottom_cap`` below that share): an upright cup posed upside down. The stage and the calibration's fit
+    both apply this rule."""
+    t = 0.0 if calibration is None else float(calibration.get("open_bottom_cap", 0.0) or 0.0)
+    return t > 0.0 and plane_tilt > 0.5 and bottom_cap < t
 
 
 def closed_top(top_cap: float, calibration: dict | None) -> bool:
@@ -188,8 +201,8 @@ class ConfidenceStage(Stage):
         if below_runner_up(state.confidence, c):                               # a pose > 30° away fits as well
             state.ambiguous = True
         ev = evidence(state)
-        if closed_top(ev["top_cap"], c) or turned_closed_top(ev["top_cap"], ev["own_axis_turn"], state.up is not None,
-                                                             c):                # it may stand the other way up
+        if closed_top(ev["top_cap"], c) or turned_closed_top(ev["top_cap"], ev["own_axis_turn"], state.up is not None, c) \
+                or open_bottom_up(ev["plane_tilt"], ev["bottom_cap"], c):      # it may stand the other way up
             state.ambiguous = True
             ev["ambiguous"] = 1.0
         state.extras["evidence"] = {k: round(v, 6) for k, v in ev.items()}
