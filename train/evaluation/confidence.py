@@ -320,17 +320,23 @@ RUNNER_UP_CANDIDATES = (0.05, 0.03, 0.02, 0.01, 0.005)   # selection margins tri
 RUNNER_UP_MIN_RESULTS = 5
 
 
+def first_flagging(values, rows: list, candidates, flagged, wrong_share: float) -> float:
+    """The first of ``candidates`` whose flagged set (``flagged(values [n], t)`` → bool [n]) holds at least
+    ``RUNNER_UP_MIN_RESULTS`` of ``rows`` and at least ``wrong_share`` wrong ones ("right" False), else 0."""
+    values = np.asarray(values, np.float64)                                    # [n]
+    wrong = ~np.array([bool(r["right"]) for r in rows], bool)                  # [n]
+    for t in candidates:
+        m = flagged(values, t)                                                 # [n]
+        if m.sum() >= RUNNER_UP_MIN_RESULTS and wrong[m].mean() >= wrong_share:
+            return t
+    return 0.0
+
+
 def runner_up_margin(rows: list) -> float:
     """The widest selection margin below which the results are wrong at least half the time (at least
     ``RUNNER_UP_MIN_RESULTS`` of them), else 0: below it another pose > 30° away fits as well, and the confidence stage
     flags the result ``ambiguous``. Rows need "margin" (as the stages left it) and "right"."""
-    margin = np.array([r["margin"] for r in rows], np.float64)                 # [n]
-    wrong = ~np.array([bool(r["right"]) for r in rows])                        # [n]
-    for t in RUNNER_UP_CANDIDATES:
-        below = margin < t
-        if below.sum() >= RUNNER_UP_MIN_RESULTS and wrong[below].mean() >= 0.5:
-            return t
-    return 0.0
+    return first_flagging([r["margin"] for r in rows], rows, RUNNER_UP_CANDIDATES, lambda v, t: v < t, 0.5)
 
 
 CLOSED_TOP_CANDIDATES = (0.05, 0.08, 0.1, 0.12, 0.15, 0.2)   # top_cap thresholds tried, lowest first
@@ -343,13 +349,8 @@ def closed_top_cap(rows: list) -> float:
     the other way up, and the confidence stage flags the result ``ambiguous``. Rows need "top_cap" and "right"."""
     if not rows or "top_cap" not in rows[0]:
         return 0.0
-    cap = np.array([r["top_cap"] for r in rows], np.float64)                  # [n]
-    wrong = ~np.array([bool(r["right"]) for r in rows])                        # [n]
-    for t in CLOSED_TOP_CANDIDATES:
-        above = cap >= t
-        if above.sum() >= RUNNER_UP_MIN_RESULTS and wrong[above].mean() >= CLOSED_TOP_WRONG:
-            return t
-    return 0.0
+    return first_flagging([r["top_cap"] for r in rows], rows, CLOSED_TOP_CANDIDATES, lambda v, t: v >= t,
+                          CLOSED_TOP_WRONG)
 
 
 TURNED_TOP_CANDIDATES = (0.02, 0.03, 0.05, 0.08, 0.1, 0.12, 0.15, 0.2)   # top_cap thresholds tried, lowest first
@@ -361,13 +362,7 @@ def turned_top_cap(rows: list) -> float:
     them), else 0: the confidence stage flags such results ``ambiguous`` (``turned_closed_top``). Rows need
     "up_given", "own_axis_turn", "top_cap" and "right"."""
     rows = [r for r in rows if r.get("up_given") and r.get("own_axis_turn", 0.0) > TURNED]
-    cap = np.array([r["top_cap"] for r in rows], np.float64)                  # [n]
-    wrong = ~np.array([bool(r["right"]) for r in rows], bool)                  # [n]
-    for t in TURNED_TOP_CANDIDATES:
-        above = cap >= t
-        if above.sum() >= RUNNER_UP_MIN_RESULTS and wrong[above].mean() >= 0.5:
-            return t
-    return 0.0
+    return first_flagging([r["top_cap"] for r in rows], rows, TURNED_TOP_CANDIDATES, lambda v, t: v >= t, 0.5)
 
 
 OPEN_BOTTOM_CANDIDATES = (0.12, 0.1, 0.08, 0.05, 0.03, 0.02)   # bottom_cap thresholds tried, highest first
@@ -379,13 +374,8 @@ def open_bottom_cap(rows: list) -> float:
     them), else 0: the end facing up reads open, so the object may stand the other way up, and the confidence stage
     flags such results ``ambiguous`` (``open_bottom_up``). Rows need "plane_tilt", "bottom_cap" and "right"."""
     rows = [r for r in rows if r.get("plane_tilt", 0.0) > 0.5 and "bottom_cap" in r]
-    cap = np.array([r["bottom_cap"] for r in rows], np.float64)               # [n]
-    wrong = ~np.array([bool(r["right"]) for r in rows], bool)                  # [n]
-    for t in OPEN_BOTTOM_CANDIDATES:
-        below = cap < t
-        if below.sum() >= RUNNER_UP_MIN_RESULTS and wrong[below].mean() >= CLOSED_TOP_WRONG:
-            return t
-    return 0.0
+    return first_flagging([r["bottom_cap"] for r in rows], rows, OPEN_BOTTOM_CANDIDATES, lambda v, t: v < t,
+                          CLOSED_TOP_WRONG)
 
 
 def flag_rows(rows: list, calibration: dict) -> list:

@@ -92,7 +92,7 @@ def turned_closed_top(top_cap: float, own_axis_turn: float, up_given: bool, cali
     the network's own best hypothesis had the object the other way up (``own_axis_turn`` > ``TURNED``) and the posed
     top shows a closed bottom at least that clearly — two readings that the object may stand on its opening. The
     stage and the calibration's fit both apply this rule."""
-    t = 0.0 if calibration is None else float(calibration.get("turned_top_cap", 0.0) or 0.0)
+    t = _flag_level(calibration, "turned_top_cap")
     return t > 0.0 and up_given and own_axis_turn > TURNED and top_cap >= t
 
 
@@ -101,7 +101,7 @@ def open_bottom_up(plane_tilt: float, bottom_cap: float, calibration: dict | Non
     on its opening on the support plane (``plane_tilt`` > 0.5) while the end it calls the bottom, the one facing up,
     reads open (``bottom_cap`` below that share): an upright cup posed upside down. The stage and the calibration's fit
     both apply this rule."""
-    t = 0.0 if calibration is None else float(calibration.get("open_bottom_cap", 0.0) or 0.0)
+    t = _flag_level(calibration, "open_bottom_cap")
     return t > 0.0 and plane_tilt > 0.5 and bottom_cap < t
 
 
@@ -109,8 +109,13 @@ def closed_top(top_cap: float, calibration: dict | None) -> bool:
     """Whether a result whose evidence reads ``top_cap`` is flagged ``ambiguous`` under ``calibration`` (the
     ``confidence_calibration`` entry, or None): its posed top shows a closed bottom at least as clearly as the
     entry's ``closed_top_cap``. The stage and the calibration's fit both apply this rule."""
-    t = 0.0 if calibration is None else float(calibration.get("closed_top_cap", 0.0) or 0.0)
+    t = _flag_level(calibration, "closed_top_cap")
     return t > 0.0 and top_cap >= t
+
+
+def _flag_level(calibration: dict | None, key: str) -> float:
+    """A flag's threshold in the ``confidence_calibration`` entry (0 when absent: the flag is off)."""
+    return 0.0 if calibration is None else float(calibration.get(key, 0.0) or 0.0)
 
 
 def evidence(state: ObjectState) -> dict:
