@@ -135,6 +135,16 @@ def test_dry_run_lists_the_steps(capsys):
     assert lines == expected
 
 
+def test_the_upright_fit_runs_before_the_confidence_it_changes():
+    for name, fitted in (("mug-tabletop", True), ("bowl-tabletop", True), ("cup-tabletop", False)):
+        r = load_recipe(recipe_path(name))
+        argvs = [s.argv for s in plan(r, state="-", skip_eval=True)]
+        upright = [i for i, a in enumerate(argvs) if "equipose.train.evaluation.rest_side" in a and "--upright" in a]
+        confidence = [i for i, a in enumerate(argvs) if "equipose.train.evaluation.confidence" in a]
+        assert bool(upright) is fitted and (not upright or upright[0] < confidence[0])
+        assert ("upright_rest" in _metadata(name)) is fitted
+
+
 def test_kept_confidence_weights_refresh_only_the_flags():
     for name, keep in (("bowl-tabletop", True), ("mug-tabletop", True), ("cup-tabletop", False)):
         r = load_recipe(recipe_path(name))

@@ -1,14 +1,22 @@
-"""Fit the ``rest_side`` stage's threshold: when should the up prior stand an open container on its opening?
+"""Fit the thresholds of the stages that decide which way up an open container rests: ``rest_side`` (when should the
+up prior stand it on its opening?) and, with ``--upright``, ``stand_upright`` (when should a pose without a prior that
+stands it on its opening be stood upright?).
 
-    python -m equipose.train.evaluation.rest_side --model sdk/models/bowl-tabletop.onnx [--views 200] [--seed 0]
-        [--write] [--json F]
+    python -m equipose.train.evaluation.rest_side --model sdk/models/bowl-tabletop.onnx [--upright] [--views 200]
+        [--seed 0] [--write] [--json F]
 
 Renders the confidence fit's tabletop views (``equipose.train.evaluation.confidence.occluded_views``, every
-``UPSIDE_DOWN_EVERY``-th view standing on its opening), predicts each with box and mask under ``up="plane"`` with the
-stage reading only (``stages={"rest_side": {"cap": "read"}}``), and chooses the lowest ``top_cap`` among
-``CANDIDATES`` at which turning the pose over (where the network's own axis points down) fixes at least ``RATIO`` times
-as many upside-down results as it breaks upright ones, and breaks at most ``MAX_BROKEN`` of them. ``--write`` stores
-{"cap", "fixes", "breaks", "fitted_on"} as ``upside_down_rest`` in the model file (and its int8 sibling); no threshold
+``UPSIDE_DOWN_EVERY``-th view standing on its opening) and predicts each with box and mask, the stage reading only
+(``{"cap": "read"}``):
+- ``rest_side``, under ``up="plane"``: chooses the lowest ``top_cap`` among ``CANDIDATES`` at which turning the pose
+  over (where the network's own axis points down) fixes at least ``RATIO`` times as many upside-down results as it
+  breaks upright ones, and breaks at most ``MAX_BROKEN`` of the upright ones; stored as ``upside_down_rest``;
+- ``stand_upright`` (``--upright``), without a prior: among the results posed on their opening on the support plane,
+  chooses the highest ``bottom_cap`` among ``UPRIGHT_CANDIDATES`` below which turning the pose upright fixes at least
+  ``RATIO`` times as many standing results as it breaks upside-down ones, and breaks at most ``MAX_BROKEN`` of all
+  results; stored as ``upright_rest``.
+
+``--write`` stores {"cap", "fixes", "breaks", "fitted_on", ...} in the model file (and its int8 sibling); no threshold
 qualifying leaves the file as it is.
 
 Convention: shares in [0, 1]; the truth's rest from the rendering ("standing" | "upside_down").
@@ -22,21 +30,27 @@ import sys
 
 from equipose.core.errors import ConfigError, EquiposeError
 
-__all__ = ["CANDIDATES", "RATIO", "MAX_BROKEN", "collect_readings", "choose_cap", "main"]
+__all__ = ["CANDIDATES", "UPRIGHT_CANDIDATES", "RATIO", "MAX_BROKEN", "collect_readings", "choose_cap",
+           "choose_upright_cap", "main"]
 
 CANDIDATES = (0.05, 0.08, 0.1, 0.12, 0.15, 0.2)
 RATIO = 10.0            # fixes per break at least
 MAX_BROKEN = 0.01       # share of the upright results turned over at most
+UPRIGHT_CANDIDATES = (0.12, 0.1, 0.08, 0.05, 0.03, 0.02)   # stand_upright: bottom_cap thresholds, highest first
 
 
-def collect_readings(model, views: int, seed: int, data_root=None, progress: bool = True) -> list:
-    """Rows {"view", "prompt", "rest", "own_up", "top_cap"} of the stage's readings under ``up="plane"``."""
+def collect_readings(model, views: int, seed: int, data_root=None, progress: bool = True,
+                     upright: bool = False) -> list:
+    """Rows {"view", "prompt", "rest", **reading} of the stage's readings: ``rest_side``'s under ``up="plane"``
+    ({"own_up", "top_cap"}), or with ``upright`` ``stand_upright``'s without a prior ({"bottom_cap"}, None for the
+    results not posed on their opening on a support plane: one row per result)."""
     from equipose import PoseEstimator
     from equipose.train.data.modelnet import default_data_root
     from equipose.train.data.tabletop import TABLETOP, tabletop_sources
     from equipose.train.evaluation.confidence import handle_parts, occluded_views
 
-    est = PoseEstimator(model, stages={"rest_side": {"cap": "read"}})
+    stage, up, extra = ("stand_upright", None, "upright_reading") if upright else ("rest_side", "plane", "rest_reading")
+    est = PoseEstimator(model, stages={stage: {"cap": "read"}})
     if est.category not in TABLETOP or not TABLETOP[est.category].upside_down:
         raise ConfigError(f"rest_side fits open containers ({', '.join(c for c, t in TABLETOP.items() if t.upside_down)}),"
                           f" not {est.category!r}")
@@ -48,12 +62,14 @@ def collect_readings(model, views: int, seed: int, data_root=None, progress: boo
         for prompt in ("box", "mask"):
             region = {"box": view.box} if prompt == "box" else {"mask": view.mask}
             try:
-                r = est.predict(view.depth, view.K, depth_unit="mm", up="plane", **region)
+                r = est.predict(view.depth, view.K, depth_unit="mm", up=up, **region)
             except EquiposeError:
                 continue
-            reading = r.extras.get("rest_reading")
+            reading = r.extras.get(extra)
             if reading is not None:
                 rows.append({"view": v, "prompt": prompt, "rest": rest, **reading})
+            elif upright:                                                       # posed upright: nothing to turn
+                rows.append({"view": v, "prompt": prompt, "rest": rest, "bottom_cap": None})
     return rows
 
 
@@ -71,6 +87,22 @@ def choose_cap(rows: list) -> dict | None:
     return None
 
 
+def choose_upright_cap(rows: list) -> dict | None:
+    """``stand_upright``: {"cap", "fixes", "breaks", "standing", "upside_down"} for the highest qualifying
+    ``bottom_cap`` threshold over the results posed on their opening (``rows`` with a reading), or None."""
+    results = len(rows)
+    rows = [r for r in rows if r["bottom_cap"] is not None]
+    for c in UPRIGHT_CANDIDATES:
+        turned = [r for r in rows if r["bottom_cap"] < c]
+        fixes = sum(r["rest"] != "upside_down" for r in turned)                 # standing, posed on its opening
+        breaks = len(turned) - fixes                                            # on its opening, posed so: right
+        if fixes > 0 and fixes >= RATIO * breaks and breaks <= MAX_BROKEN * results:
+            return {"cap": c, "fixes": fixes, "breaks": breaks,
+                    "standing": sum(r["rest"] != "upside_down" for r in rows),
+                    "upside_down": sum(r["rest"] == "upside_down" for r in rows)}
+    return None
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--model", required=True)
@@ -79,7 +111,11 @@ def main(argv=None) -> int:
     ap.add_argument("--data-root", dest="data_root")
     ap.add_argument("--write", action="store_true")
     ap.add_argument("--json", help="write the readings here")
+    ap.add_argument("--upright", action="store_true",
+                    help="fit stand_upright (no prior: stand a pose on its opening upright) instead of rest_side")
     a = ap.parse_args(argv)
+    if a.upright:
+        return _fit_upright(a)
     rows = collect_readings(a.model, a.views, a.seed, a.data_root)
     choice = choose_cap(rows)
     if a.json:
@@ -94,6 +130,25 @@ def main(argv=None) -> int:
     if a.write:
         from equipose.export.onnx_export import update_metadata_with_int8
         update_metadata_with_int8(a.model, upside_down_rest=choice)
+    return 0
+
+
+def _fit_upright(a) -> int:
+    rows = collect_readings(a.model, a.views, a.seed, a.data_root, upright=True)
+    choice = choose_upright_cap(rows)
+    if a.json:
+        pathlib.Path(a.json).write_text(json.dumps({"choice": choice, "rows": rows}, indent=1))
+    if choice is None:
+        print(f"{pathlib.Path(a.model).name}: no threshold stands ≥ {RATIO:g}× as many standing results upright as "
+              f"it turns upside-down ones wrong; nothing written")
+        return 0
+    choice["fitted_on"] = f"{len(rows)} rendered occluded tabletop results without an up prior (seed {a.seed})"
+    print(f"{pathlib.Path(a.model).name}: cap {choice['cap']}: fixes {choice['fixes']} standing results posed on "
+          f"their opening, breaks {choice['breaks']} of the {choice['upside_down']} upside-down ones posed so "
+          f"({len(rows)} results)")
+    if a.write:
+        from equipose.export.onnx_export import update_metadata_with_int8
+        update_metadata_with_int8(a.model, upright_rest=choice)
     return 0
 
 

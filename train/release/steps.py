@@ -112,6 +112,10 @@ def _file_steps(r: Recipe, f: str, views: int, skip_eval: bool) -> list:
     if r.rest_side_views and f == r.name:           # before the confidence fit: the turned poses are what it sees
         steps.append(_python("equipose.train.evaluation.rest_side", "--model", model, "--views", r.rest_side_views,
                              "--write", title=f"{f} (and its int8 copy): when the up prior stands it on its opening"))
+    if r.rest_side_upright_views and f == r.name:   # likewise: the poses stood upright are what the confidence sees
+        steps.append(_python("equipose.train.evaluation.rest_side", "--upright", "--model", model, "--views",
+                             r.rest_side_upright_views, "--write",
+                             title=f"{f} (and its int8 copy): when a pose on its opening is stood upright"))
     if f == r.name:                                                            # also written into the int8 file
         keep = ["--flags-only"] if r.confidence_keep_weights else []
         steps.append(_python("equipose.train.evaluation.confidence", "--model", model, "--views", CONFIDENCE_VIEWS,

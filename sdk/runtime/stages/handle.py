@@ -23,7 +23,7 @@ __all__ = ["HandleStage"]
 class HandleStage(Stage):
     name = "handle"
     metadata_key = "handle"
-    after = "rest_side"
+    after = "stand_upright"
 
     def __init__(self, direction):
         self.direction = np.asarray(direction, np.float64)                     # [3] category frame

@@ -1,0 +1,83 @@
+"""Stage ``stand_upright`` (metadata ``upright_rest``): without an up prior, an open container posed on its opening is
+stood upright where the end facing up reads open.
+
+A pose that stands a cup, mug or bowl on its opening on the support plane under it (its category up axis z pointing
+into the table) claims that the closed base faces up. Where ``equipose.core.opening.top_closure`` finds the end facing
+up open instead (its ``bottom`` share, the points near the axis at the posed bottom, below the file's ``cap``), the
+view contradicts the pose: an upright container posed upside down, the network's most common error on them. The stage
+turns the pose over (a half turn about the category x axis) and refits its azimuth and centre with the axis held on the
+support plane's normal (``equipose.runtime.upright.upright_icp``).
+
+``upright_rest`` JSON {"cap": c, ...} holds c, chosen on rendered views where the turn fixes at least ten times as many
+results as it breaks (``equipose.train.evaluation.rest_side --upright``). Option ``cap``: "auto" (the file's; absent:
+the stage does not run), a share in (0, 1], or "read" (report the reading, never turn). Result extras where it reads:
+``upright_reading`` {"bottom_cap": the share}, and ``rest`` "upright" where it turned the pose. Under an up prior the
+stage does nothing (the prior holds the axis; stage ``rest_side`` decides there).
+
+Convention: category frame, model units, centred camera frame; the support plane's normal a unit camera-frame
+direction.
+"""
+from __future__ import annotations
+
+import math
+
+from equipose.core.errors import ConfigError, MetadataError
+from equipose.core.geometry import nearest_rotation
+from equipose.core.metadata import float_entry
+from equipose.core.opening import top_closure
+from equipose.runtime.stage import ObjectState, Stage, register_stage
+from equipose.runtime.stages.rest_side import HALF_TURN_X
+from equipose.runtime.upright import upright_icp
+
+__all__ = ["StandUprightStage", "parse_upright_rest"]
+
+
+def parse_upright_rest(text, source: str = "model") -> dict | None:
+    """``upright_rest`` metadata (JSON string or dict) → the dict with ``cap`` a float in (0, 1], or None. Raises
+    ``MetadataError`` when malformed."""
+    d = float_entry(text, "upright_rest", "cap", source,
+                    "python -m equipose.train.evaluation.rest_side --upright --model ... --write")
+    if d is not None and not (math.isfinite(d["cap"]) and 0.0 < d["cap"] <= 1.0):
+        raise MetadataError(f"{source}: upright_rest cap must be a share in (0, 1], got {d['cap']}")
+    return d
+
+
+@register_stage
+class StandUprightStage(Stage):
+    name = "stand_upright"
+    metadata_key = "upright_rest"
+    after = "rest_side"
+    options = {"cap": "auto"}
+
+    def __init__(self, cap: float | None):
+        self.cap = cap                                                          # None: read only
+
+    @classmethod
+    def build(cls, spec, options, context):
+        cap = options["cap"]
+        if isinstance(cap, str) and cap == "auto":
+            d = parse_upright_rest(spec.get(cls.metadata_key), spec.name)
+            return None if d is None else cls(d["cap"])
+        if isinstance(cap, str) and cap == "read":
+            return cls(None)
+        if isinstance(cap, bool) or not isinstance(cap, (int, float)) or not 0.0 < cap <= 1.0:
+            raise ConfigError(f"stand_upright cap must be 'auto', 'read' or a share in (0, 1], got {cap!r}")
+        return cls(float(cap))
+
+    def describe(self) -> dict:
+        return {"cap": self.cap if self.cap is not None else "read"}
+
+    def run(self, state: ObjectState) -> None:
+        if state.up is not None or state.support_up is None or state.rotation is None:
+            return
+        axis = state.rotation[:, 2]                                             # [3] the pose's category up
+        if float(axis @ state.support_up) >= 0.0:                               # not posed on its opening
+            return
+        bottom = top_closure(state.points, axis, state.translation).bottom     # the end facing up
+        state.extras["upright_reading"] = {"bottom_cap": bottom}
+        if self.cap is None or bottom >= self.cap:
+            return
+        R, t, _ = upright_icp(state.points, state.canonical_category, (state.rotation @ HALF_TURN_X)[None],
+                              state.translation[None], state.support_up)       # stood on its base, refitted
+        state.set_pose(nearest_rotation(R[0]), t[0])
+        state.extras["rest"] = "upright"

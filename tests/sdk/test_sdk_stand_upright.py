@@ -1,0 +1,70 @@
+"""Stage ``stand_upright``: without an up prior, a pose that stands an open container on its opening on the support
+plane is stood upright where the end facing up reads open; then its azimuth and centre are refitted."""
+import numpy as np
+import pytest
+
+from equipose import errors
+from equipose.runtime.stage import STAGE_ORDER
+from equipose.runtime.stages.rest_side import HALF_TURN_X
+from equipose.runtime.stages.stand_upright import StandUprightStage, parse_upright_rest
+from equipose.testing import cup_view_points, posed_state
+
+UP = np.array([0.0, 0.0, 1.0])
+
+
+def _state(upside_down: bool, posed_down: bool = True, up=None, plane=True):
+    """A cup standing upright (or on its opening) on a table with normal +z, posed on its opening (or upright)."""
+    x = cup_view_points(seed=5, upside_down=upside_down)                       # [900, 3], heights 0–1
+    canon = cup_view_points(seed=6) - [0.0, 0.0, 0.5]                          # upright, centred on its middle
+    state = posed_state(x, HALF_TURN_X if posed_down else np.eye(3), np.array([0.0, 0.0, 0.5]), canonical=canon, up=up)
+    if plane:
+        state.support_up, state.support_offset = UP.copy(), 0.0
+    return state
+
+
+def test_an_upright_cup_posed_on_its_opening_is_stood_upright_and_refitted():
+    state = _state(upside_down=False)
+    StandUprightStage(0.1).run(state)
+    assert state.extras["rest"] == "upright"
+    assert state.rotation[:, 2] @ UP == pytest.approx(1.0, abs=1e-6)          # the opening faces up again
+    assert state.extras["upright_reading"]["bottom_cap"] < 0.1
+    assert abs(state.translation[2] - 0.5) < 0.1                               # the centre refitted near the body's
+
+
+@pytest.mark.parametrize("upside_down, posed_down, cap, up, plane", [
+    (True, True, 0.1, None, True),        # it does stand on its opening: the end facing up reads closed
+    (False, False, 0.1, None, True),      # posed upright already
+    (False, True, None, None, True),      # "read": the reading only
+    (False, True, 0.1, UP, True),         # an up prior holds the axis: rest_side decides there
+    (False, True, 0.1, None, False),      # no support plane under it
+])
+def test_no_turn_without_the_contradiction(upside_down, posed_down, cap, up, plane):
+    state = _state(upside_down, posed_down, up, plane)
+    before = state.rotation.copy()
+    StandUprightStage(cap).run(state)
+    assert "rest" not in state.extras and np.array_equal(state.rotation, before)
+    assert ("upright_reading" in state.extras) is (posed_down and up is None and plane)
+
+
+def test_metadata_options_and_place_in_the_pipeline():
+    assert parse_upright_rest('{"cap": 0.12, "fixes": 40}')["cap"] == 0.12 and parse_upright_rest(None) is None
+    for bad in ('{"cap": 0}', '{"cap": 1.5}', '{"nope": 1}', "not json"):
+        with pytest.raises(errors.MetadataError):
+            parse_upright_rest(bad)
+
+    class Spec:
+        name = "m"
+
+        def __init__(self, value):
+            self.value = value
+
+        def get(self, key):
+            return self.value
+
+    assert StandUprightStage.build(Spec(None), {"cap": "auto"}, {}) is None
+    assert StandUprightStage.build(Spec('{"cap": 0.1}'), {"cap": "auto"}, {}).cap == 0.1
+    assert StandUprightStage.build(Spec(None), {"cap": "read"}, {}).cap is None
+    with pytest.raises(errors.ConfigError):
+        StandUprightStage.build(Spec(None), {"cap": 2.0}, {})
+    order = STAGE_ORDER
+    assert order.index("rest_side") + 1 == order.index("stand_upright") == order.index("handle") - 1
