@@ -3,8 +3,7 @@ best hypothesis points down and the upright pose's top reads closed; then its ce
 import numpy as np
 import pytest
 
-from equipose import errors
-from equipose.runtime.stages.rest_side import HALF_TURN_X, RestSideStage, parse_upside_down_rest
+from equipose.runtime.stages.rest_side import HALF_TURN_X, RestSideStage
 from equipose.testing import cup_view_points, posed_state
 
 UP = np.array([0.0, 0.0, 1.0])
@@ -42,25 +41,3 @@ def test_no_turn_without_both_readings(upside_down, own_down, cap, up):
     RestSideStage(cap).run(state)
     assert "rest" not in state.extras and np.array_equal(state.rotation, before)
     assert ("rest_reading" in state.extras) is (up is not None)
-
-
-def test_metadata_and_options():
-    assert parse_upside_down_rest('{"cap": 0.1, "fixes": 3}')["cap"] == 0.1 and parse_upside_down_rest(None) is None
-    for bad in ('{"cap": 0}', '{"cap": 1.5}', '{"nope": 1}', "not json"):
-        with pytest.raises(errors.MetadataError):
-            parse_upside_down_rest(bad)
-
-    class Spec:
-        name = "m"
-
-        def __init__(self, value):
-            self.value = value
-
-        def get(self, key):
-            return self.value
-
-    assert RestSideStage.build(Spec(None), {"cap": "auto"}, None) is None
-    assert RestSideStage.build(Spec('{"cap": 0.2}'), {"cap": "auto"}, None).cap == 0.2
-    assert RestSideStage.build(Spec(None), {"cap": "read"}, None).describe() == {"cap": "read"}
-    with pytest.raises(errors.ConfigError):
-        RestSideStage.build(Spec(None), {"cap": 2}, None)

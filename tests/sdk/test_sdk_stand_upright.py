@@ -5,7 +5,7 @@ import pytest
 
 from equipose import errors
 from equipose.runtime.stage import STAGE_ORDER
-from equipose.runtime.stages.rest_side import HALF_TURN_X
+from equipose.runtime.stages.rest_side import HALF_TURN_X, RestSideStage, parse_upside_down_rest
 from equipose.runtime.stages.stand_upright import StandUprightStage, parse_upright_rest
 from equipose.testing import cup_view_points, posed_state
 
@@ -46,25 +46,31 @@ def test_no_turn_without_the_contradiction(upside_down, posed_down, cap, up, pla
     assert ("upright_reading" in state.extras) is (posed_down and up is None and plane)
 
 
-def test_metadata_options_and_place_in_the_pipeline():
-    assert parse_upright_rest('{"cap": 0.12, "fixes": 40}')["cap"] == 0.12 and parse_upright_rest(None) is None
+class _Spec:
+    """A model spec holding one metadata value."""
+    name = "m"
+
+    def __init__(self, value):
+        self.value = value
+
+    def get(self, key):
+        return self.value
+
+
+@pytest.mark.parametrize("stage, parse", [(RestSideStage, parse_upside_down_rest),
+                                          (StandUprightStage, parse_upright_rest)])
+def test_share_cap_metadata_and_options(stage, parse):
+    assert parse('{"cap": 0.12, "fixes": 40}')["cap"] == 0.12 and parse(None) is None
     for bad in ('{"cap": 0}', '{"cap": 1.5}', '{"nope": 1}', "not json"):
         with pytest.raises(errors.MetadataError):
-            parse_upright_rest(bad)
-
-    class Spec:
-        name = "m"
-
-        def __init__(self, value):
-            self.value = value
-
-        def get(self, key):
-            return self.value
-
-    assert StandUprightStage.build(Spec(None), {"cap": "auto"}, {}) is None
-    assert StandUprightStage.build(Spec('{"cap": 0.1}'), {"cap": "auto"}, {}).cap == 0.1
-    assert StandUprightStage.build(Spec(None), {"cap": "read"}, {}).cap is None
+            parse(bad)
+    assert stage.build(_Spec(None), {"cap": "auto"}, {}) is None
+    assert stage.build(_Spec('{"cap": 0.1}'), {"cap": "auto"}, {}).cap == 0.1
+    assert stage.build(_Spec(None), {"cap": "read"}, {}).describe() == {"cap": "read"}
     with pytest.raises(errors.ConfigError):
-        StandUprightStage.build(Spec(None), {"cap": 2.0}, {})
+        stage.build(_Spec(None), {"cap": 2.0}, {})
+
+
+def test_place_in_the_pipeline():
     order = STAGE_ORDER
     assert order.index("rest_side") + 1 == order.index("stand_upright") == order.index("handle") - 1

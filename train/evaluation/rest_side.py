@@ -114,41 +114,27 @@ def main(argv=None) -> int:
     ap.add_argument("--upright", action="store_true",
                     help="fit stand_upright (no prior: stand a pose on its opening upright) instead of rest_side")
     a = ap.parse_args(argv)
+    rows = collect_readings(a.model, a.views, a.seed, a.data_root, upright=a.upright)
+    choice = choose_upright_cap(rows) if a.upright else choose_cap(rows)
+    if a.json:
+        pathlib.Path(a.json).write_text(json.dumps({"choice": choice, "rows": rows}, indent=1))
+    name = pathlib.Path(a.model).name
+    if choice is None:
+        what = "standing results upright as it turns upside-down" if a.upright else \
+            "upside-down results right as it turns upright"
+        print(f"{name}: no threshold turns ≥ {RATIO:g}× as many {what} ones wrong; nothing written")
+        return 0
     if a.upright:
-        return _fit_upright(a)
-    rows = collect_readings(a.model, a.views, a.seed, a.data_root)
-    choice = choose_cap(rows)
-    if a.json:
-        pathlib.Path(a.json).write_text(json.dumps({"choice": choice, "rows": rows}, indent=1))
-    if choice is None:
-        print(f"{pathlib.Path(a.model).name}: no threshold turns ≥ {RATIO:g}× as many upside-down results right as "
-              f"it turns upright ones wrong; nothing written")
-        return 0
-    choice["fitted_on"] = f"{len(rows)} rendered occluded tabletop views under up='plane' (seed {a.seed})"
-    print(f"{pathlib.Path(a.model).name}: cap {choice['cap']}: fixes {choice['fixes']} of {choice['upside_down']} "
-          f"upside-down results, breaks {choice['breaks']} of {choice['standing']} upright ones")
+        choice["fitted_on"] = f"{len(rows)} rendered occluded tabletop results without an up prior (seed {a.seed})"
+        print(f"{name}: cap {choice['cap']}: fixes {choice['fixes']} standing results posed on their opening, breaks "
+              f"{choice['breaks']} of the {choice['upside_down']} upside-down ones posed so ({len(rows)} results)")
+    else:
+        choice["fitted_on"] = f"{len(rows)} rendered occluded tabletop views under up='plane' (seed {a.seed})"
+        print(f"{name}: cap {choice['cap']}: fixes {choice['fixes']} of {choice['upside_down']} upside-down results, "
+              f"breaks {choice['breaks']} of {choice['standing']} upright ones")
     if a.write:
         from equipose.export.onnx_export import update_metadata_with_int8
-        update_metadata_with_int8(a.model, upside_down_rest=choice)
-    return 0
-
-
-def _fit_upright(a) -> int:
-    rows = collect_readings(a.model, a.views, a.seed, a.data_root, upright=True)
-    choice = choose_upright_cap(rows)
-    if a.json:
-        pathlib.Path(a.json).write_text(json.dumps({"choice": choice, "rows": rows}, indent=1))
-    if choice is None:
-        print(f"{pathlib.Path(a.model).name}: no threshold stands ≥ {RATIO:g}× as many standing results upright as "
-              f"it turns upside-down ones wrong; nothing written")
-        return 0
-    choice["fitted_on"] = f"{len(rows)} rendered occluded tabletop results without an up prior (seed {a.seed})"
-    print(f"{pathlib.Path(a.model).name}: cap {choice['cap']}: fixes {choice['fixes']} standing results posed on "
-          f"their opening, breaks {choice['breaks']} of the {choice['upside_down']} upside-down ones posed so "
-          f"({len(rows)} results)")
-    if a.write:
-        from equipose.export.onnx_export import update_metadata_with_int8
-        update_metadata_with_int8(a.model, upright_rest=choice)
+        update_metadata_with_int8(a.model, **{"upright_rest" if a.upright else "upside_down_rest": choice})
     return 0
 
 

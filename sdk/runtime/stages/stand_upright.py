@@ -19,53 +19,30 @@ direction.
 """
 from __future__ import annotations
 
-import math
-
-from equipose.core.errors import ConfigError, MetadataError
 from equipose.core.geometry import nearest_rotation
-from equipose.core.metadata import float_entry
 from equipose.core.opening import top_closure
-from equipose.runtime.stage import ObjectState, Stage, register_stage
-from equipose.runtime.stages.rest_side import HALF_TURN_X
+from equipose.runtime.stage import ObjectState, register_stage
+from equipose.runtime.stages.rest_side import HALF_TURN_X, ShareCapStage, parse_share_cap
 from equipose.runtime.upright import upright_icp
 
 __all__ = ["StandUprightStage", "parse_upright_rest"]
 
 
 def parse_upright_rest(text, source: str = "model") -> dict | None:
-    """``upright_rest`` metadata (JSON string or dict) → the dict with ``cap`` a float in (0, 1], or None. Raises
-    ``MetadataError`` when malformed."""
-    d = float_entry(text, "upright_rest", "cap", source,
-                    "python -m equipose.train.evaluation.rest_side --upright --model ... --write")
-    if d is not None and not (math.isfinite(d["cap"]) and 0.0 < d["cap"] <= 1.0):
-        raise MetadataError(f"{source}: upright_rest cap must be a share in (0, 1], got {d['cap']}")
-    return d
+    """``upright_rest`` metadata → the dict with ``cap`` a float in (0, 1], or None (``parse_share_cap``)."""
+    return parse_share_cap(text, "upright_rest", source,
+                           "python -m equipose.train.evaluation.rest_side --upright --model ... --write")
 
 
 @register_stage
-class StandUprightStage(Stage):
+class StandUprightStage(ShareCapStage):
     name = "stand_upright"
     metadata_key = "upright_rest"
     after = "rest_side"
-    options = {"cap": "auto"}
-
-    def __init__(self, cap: float | None):
-        self.cap = cap                                                          # None: read only
 
     @classmethod
-    def build(cls, spec, options, context):
-        cap = options["cap"]
-        if isinstance(cap, str) and cap == "auto":
-            d = parse_upright_rest(spec.get(cls.metadata_key), spec.name)
-            return None if d is None else cls(d["cap"])
-        if isinstance(cap, str) and cap == "read":
-            return cls(None)
-        if isinstance(cap, bool) or not isinstance(cap, (int, float)) or not 0.0 < cap <= 1.0:
-            raise ConfigError(f"stand_upright cap must be 'auto', 'read' or a share in (0, 1], got {cap!r}")
-        return cls(float(cap))
-
-    def describe(self) -> dict:
-        return {"cap": self.cap if self.cap is not None else "read"}
+    def parse(cls, text, source: str) -> dict | None:
+        return parse_upright_rest(text, source)
 
     def run(self, state: ObjectState) -> None:
         if state.up is not None or state.support_up is None or state.rotation is None:
