@@ -47,7 +47,7 @@ calibration's ``turned_top_cap`` is flagged too: at least half of such results o
 a pose that stands the object on its opening on the support plane (``plane_tilt`` > 0.5) while the end it calls the
 bottom, facing up, reads open (``bottom_cap`` below the calibration's ``open_bottom_cap``) is flagged as well; at
 least 90 % of such fitting results were wrong (``equipose.train.evaluation.confidence.open_bottom_cap``; the
-shipped cup, mug and bowl files hold 0.12).
+shipped cup and mug files hold 0.12).
 
 With ``confidence_calibration`` in the model file, ``confidence`` = σ(bias + Σ weight·feature): the estimated chance
 that the rotation is within 10° of the truth (modulo the symmetry) and the centre within 2 cm, fitted on rendered
