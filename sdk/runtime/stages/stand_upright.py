@@ -11,7 +11,8 @@ support plane's normal (``equipose.runtime.upright.upright_icp``).
 ``upright_rest`` JSON {"cap": c, ...} holds c, chosen on rendered views where the turn fixes at least ten times as many
 results as it breaks (``equipose.train.evaluation.rest_side --upright``). Option ``cap``: "auto" (the file's; absent:
 the stage does not run), a share in (0, 1], or "read" (report the reading, never turn). Result extras where it reads:
-``upright_reading`` {"bottom_cap": the share}, and ``rest`` "upright" where it turned the pose. Under an up prior the
+``upright_reading`` {"bottom_cap": the share, "top_taper": how much the body widens towards the end on the table},
+and ``rest`` "upright" where it turned the pose. Under an up prior the
 stage does nothing (the prior holds the axis; stage ``rest_side`` decides there).
 
 Convention: category frame, model units, centred camera frame; the support plane's normal a unit camera-frame
@@ -50,9 +51,9 @@ class StandUprightStage(ShareCapStage):
         axis = state.rotation[:, 2]                                             # [3] the pose's category up
         if float(axis @ state.support_up) >= 0.0:                               # not posed on its opening
             return
-        bottom = top_closure(state.points, axis, state.translation).bottom     # the end facing up
-        state.extras["upright_reading"] = {"bottom_cap": bottom}
-        if self.cap is None or bottom >= self.cap:
+        ends = top_closure(state.points, axis, state.translation)              # the end facing up: ends.bottom
+        state.extras["upright_reading"] = {"bottom_cap": ends.bottom, "top_taper": ends.taper}
+        if self.cap is None or ends.bottom >= self.cap:
             return
         R, t, _ = upright_icp(state.points, state.canonical_category, (state.rotation @ HALF_TURN_X)[None],
                               state.translation[None], state.support_up)       # stood on its base, refitted
