@@ -18,14 +18,16 @@ frame) into that frame, ``x = R y + t``.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from equipose.core.errors import ConfigError
+from equipose.core.errors import ConfigError, MetadataError
+from equipose.core.metadata import float_entry
 
 __all__ = ["Stage", "ObjectState", "register_stage", "unregister_stage", "registered_stages", "stage_metadata_keys",
-           "STAGE_ORDER", "cloud_points_option", "int_option", "MIN_FIT_POINTS"]
+           "STAGE_ORDER", "cloud_points_option", "int_option", "MIN_FIT_POINTS", "ShareCapStage", "parse_share_cap"]
 
 STAGE_ORDER: list = []          # stage names in run order (registration inserts each after its ``after``)
 _REGISTRY: dict = {}
@@ -53,6 +55,47 @@ class Stage:
     def describe(self) -> dict:
         """Settings of the configured stage (JSON-ready), for ``PoseEstimator.pipeline_info``."""
         return {}
+
+
+def parse_share_cap(text, name: str, source: str, hint: str) -> dict | None:
+    """A ``{"cap": share, ...}`` metadata entry ``name`` (JSON string or dict) → the dict with ``cap`` a float in
+    (0, 1], or None when absent. Raises ``MetadataError`` naming the command that writes it (``hint``) when malformed."""
+    d = float_entry(text, name, "cap", source, hint)
+    if d is not None and not (math.isfinite(d["cap"]) and 0.0 < d["cap"] <= 1.0):
+        raise MetadataError(f"{source}: {name} cap must be a share in (0, 1], got {d['cap']}")
+    return d
+
+
+class ShareCapStage(Stage):
+    """A stage that acts where a reading passes the share threshold ``cap`` of its metadata entry
+    (``{"cap": share, ...}`` under ``metadata_key``, written by ``fit_command``) and otherwise only reports the reading.
+    Option ``cap``: "auto" (the file's; absent: the stage does not run), a share in (0, 1], or "read" (``cap`` None:
+    report, never act)."""
+    options = {"cap": "auto"}
+    fit_command: str = ""                   # what writes the metadata entry (named in its errors)
+
+    def __init__(self, cap: float | None):
+        self.cap = cap                                                          # None: read only
+
+    @classmethod
+    def parse(cls, text, source: str = "model") -> dict | None:
+        """The stage's metadata entry → the dict with ``cap`` a float in (0, 1], or None (``parse_share_cap``)."""
+        return parse_share_cap(text, cls.metadata_key, source, cls.fit_command)
+
+    @classmethod
+    def build(cls, spec, options, context):
+        cap = options["cap"]
+        if isinstance(cap, str) and cap == "auto":
+            d = cls.parse(spec.get(cls.metadata_key), spec.name)
+            return None if d is None else cls(d["cap"])
+        if isinstance(cap, str) and cap == "read":
+            return cls(None)
+        if isinstance(cap, bool) or not isinstance(cap, (int, float)) or not 0.0 < cap <= 1.0:
+            raise ConfigError(f"{cls.name} cap must be 'auto', 'read' or a share in (0, 1], got {cap!r}")
+        return cls(float(cap))
+
+    def describe(self) -> dict:
+        return {"cap": self.cap if self.cap is not None else "read"}
 
 
 def register_stage(cls):

@@ -73,34 +73,39 @@ def collect_readings(model, views: int, seed: int, data_root=None, progress: boo
     return rows
 
 
+def _first_qualifying(candidates, turns, fixable: list, breakable: list, max_breaks: float) -> tuple | None:
+    """(threshold, fixes, breaks) for the first of ``candidates`` at which ``turns(row, c)`` turns at least ``RATIO``
+    times as many ``fixable`` rows as ``breakable`` ones, at least one, and at most ``max_breaks`` of the latter."""
+    for c in candidates:
+        fixes = sum(turns(r, c) for r in fixable)
+        breaks = sum(turns(r, c) for r in breakable)
+        if fixes > 0 and fixes >= RATIO * breaks and breaks <= max_breaks:
+            return c, fixes, breaks
+    return None
+
+
 def choose_cap(rows: list) -> dict | None:
     """{"cap", "fixes", "breaks", "upside_down", "standing"} for the lowest qualifying threshold, or None."""
     down = [r for r in rows if r["rest"] == "upside_down"]
     up = [r for r in rows if r["rest"] != "upside_down"]
     if not down or not up:
         return None
-    for c in CANDIDATES:
-        turns = lambda r: r["own_up"] < 0.0 and r["top_cap"] >= c          # noqa: E731
-        fixes, breaks = sum(map(turns, down)), sum(map(turns, up))
-        if fixes >= RATIO * breaks and breaks <= MAX_BROKEN * len(up) and fixes > 0:
-            return {"cap": c, "fixes": fixes, "breaks": breaks, "upside_down": len(down), "standing": len(up)}
-    return None
+    found = _first_qualifying(CANDIDATES, lambda r, c: r["own_up"] < 0.0 and r["top_cap"] >= c, down, up,
+                              MAX_BROKEN * len(up))
+    return None if found is None else {"cap": found[0], "fixes": found[1], "breaks": found[2],
+                                       "upside_down": len(down), "standing": len(up)}
 
 
 def choose_upright_cap(rows: list) -> dict | None:
     """``stand_upright``: {"cap", "fixes", "breaks", "standing", "upside_down"} for the highest qualifying
     ``bottom_cap`` threshold over the results posed on their opening (``rows`` with a reading), or None."""
-    results = len(rows)
-    rows = [r for r in rows if r["bottom_cap"] is not None]
-    for c in UPRIGHT_CANDIDATES:
-        turned = [r for r in rows if r["bottom_cap"] < c]
-        fixes = sum(r["rest"] != "upside_down" for r in turned)                 # standing, posed on its opening
-        breaks = len(turned) - fixes                                            # on its opening, posed so: right
-        if fixes > 0 and fixes >= RATIO * breaks and breaks <= MAX_BROKEN * results:
-            return {"cap": c, "fixes": fixes, "breaks": breaks,
-                    "standing": sum(r["rest"] != "upside_down" for r in rows),
-                    "upside_down": sum(r["rest"] == "upside_down" for r in rows)}
-    return None
+    posed = [r for r in rows if r["bottom_cap"] is not None]
+    standing = [r for r in posed if r["rest"] != "upside_down"]                 # posed on its opening: wrong
+    down = [r for r in posed if r["rest"] == "upside_down"]                     # on its opening, posed so: right
+    found = _first_qualifying(UPRIGHT_CANDIDATES, lambda r, c: r["bottom_cap"] < c, standing, down,
+                              MAX_BROKEN * len(rows))
+    return None if found is None else {"cap": found[0], "fixes": found[1], "breaks": found[2],
+                                       "standing": len(standing), "upside_down": len(down)}
 
 
 def main(argv=None) -> int:

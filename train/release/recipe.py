@@ -190,7 +190,8 @@ def _flatten(data: dict, source: str) -> dict:
 def _check_combinations(r: Recipe, source: str) -> None:
     partial_only = {"[refine] visibility": r.refine_visibility is not None,
                     "[turn_classifier]": bool(r.turn_state or r.turn_copy_from),
-                    "[centre]": r.centre_views is not None, "[rest_side]": r.rest_side_views is not None or r.rest_side_upright_views is not None}
+                    "[centre]": r.centre_views is not None,
+                    "[rest_side]": r.rest_side_views is not None or r.rest_side_upright_views is not None}
     complete_only = {"rest_facet": r.rest_facet is not None, "frame_priors": r.frame_priors is not None}
     for what, used in partial_only.items():
         if used and r.mode != "partial":

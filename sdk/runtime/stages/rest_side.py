@@ -18,75 +18,24 @@ Convention: category frame, model units, centred camera frame; ``up`` a unit cam
 """
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
-from equipose.core.errors import ConfigError, MetadataError
 from equipose.core.geometry import nearest_rotation
-from equipose.core.metadata import float_entry
 from equipose.core.opening import top_closure
-from equipose.runtime.stage import ObjectState, Stage, register_stage
+from equipose.runtime.stage import ObjectState, ShareCapStage, register_stage
 from equipose.runtime.upright import upright_icp
 
-__all__ = ["RestSideStage", "ShareCapStage", "parse_upside_down_rest", "parse_share_cap", "HALF_TURN_X"]
+__all__ = ["RestSideStage", "parse_upside_down_rest", "HALF_TURN_X"]
 
 HALF_TURN_X = np.diag([1.0, -1.0, -1.0])       # category frame: the opening (+z) turned down, x kept
-
-
-def parse_share_cap(text, name: str, source: str, hint: str) -> dict | None:
-    """A ``{"cap": share, ...}`` metadata entry ``name`` (JSON string or dict) → the dict with ``cap`` a float in
-    (0, 1], or None when absent. Raises ``MetadataError`` naming the command that writes it (``hint``) when malformed."""
-    d = float_entry(text, name, "cap", source, hint)
-    if d is not None and not (math.isfinite(d["cap"]) and 0.0 < d["cap"] <= 1.0):
-        raise MetadataError(f"{source}: {name} cap must be a share in (0, 1], got {d['cap']}")
-    return d
-
-
-def parse_upside_down_rest(text, source: str = "model") -> dict | None:
-    """``upside_down_rest`` metadata → the dict with ``cap`` a float in (0, 1], or None (``parse_share_cap``)."""
-    return parse_share_cap(text, "upside_down_rest", source,
-                           "python -m equipose.train.evaluation.rest_side --model ... --write")
-
-
-class ShareCapStage(Stage):
-    """A stage that acts where a reading passes its model file's share threshold ``cap`` (``parse``) and otherwise
-    only reports the reading. Option ``cap``: "auto" (the file's; absent: the stage does not run), a share in (0, 1],
-    or "read" (``cap`` None: report, never act)."""
-    options = {"cap": "auto"}
-
-    def __init__(self, cap: float | None):
-        self.cap = cap                                                          # None: read only
-
-    @classmethod
-    def parse(cls, text, source: str) -> dict | None:
-        raise NotImplementedError
-
-    @classmethod
-    def build(cls, spec, options, context):
-        cap = options["cap"]
-        if isinstance(cap, str) and cap == "auto":
-            d = cls.parse(spec.get(cls.metadata_key), spec.name)
-            return None if d is None else cls(d["cap"])
-        if isinstance(cap, str) and cap == "read":
-            return cls(None)
-        if isinstance(cap, bool) or not isinstance(cap, (int, float)) or not 0.0 < cap <= 1.0:
-            raise ConfigError(f"{cls.name} cap must be 'auto', 'read' or a share in (0, 1], got {cap!r}")
-        return cls(float(cap))
-
-    def describe(self) -> dict:
-        return {"cap": self.cap if self.cap is not None else "read"}
 
 
 @register_stage
 class RestSideStage(ShareCapStage):
     name = "rest_side"
     metadata_key = "upside_down_rest"
+    fit_command = "python -m equipose.train.evaluation.rest_side --model ... --write"
     after = "cylinder"
-
-    @classmethod
-    def parse(cls, text, source: str) -> dict | None:
-        return parse_upside_down_rest(text, source)
 
     def run(self, state: ObjectState) -> None:
         if state.up is None or state.rotation is None:
@@ -101,3 +50,6 @@ class RestSideStage(ShareCapStage):
                               state.translation[None], -state.up)              # stood on its opening, refitted
         state.set_pose(nearest_rotation(R[0]), t[0])
         state.extras["rest"] = "upside_down"
+
+
+parse_upside_down_rest = RestSideStage.parse    # ``upside_down_rest`` metadata → {"cap": share, ...} or None

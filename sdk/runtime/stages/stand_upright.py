@@ -22,28 +22,19 @@ from __future__ import annotations
 
 from equipose.core.geometry import nearest_rotation
 from equipose.core.opening import top_closure
-from equipose.runtime.stage import ObjectState, register_stage
-from equipose.runtime.stages.rest_side import HALF_TURN_X, ShareCapStage, parse_share_cap
+from equipose.runtime.stage import ObjectState, ShareCapStage, register_stage
+from equipose.runtime.stages.rest_side import HALF_TURN_X
 from equipose.runtime.upright import upright_icp
 
 __all__ = ["StandUprightStage", "parse_upright_rest"]
-
-
-def parse_upright_rest(text, source: str = "model") -> dict | None:
-    """``upright_rest`` metadata → the dict with ``cap`` a float in (0, 1], or None (``parse_share_cap``)."""
-    return parse_share_cap(text, "upright_rest", source,
-                           "python -m equipose.train.evaluation.rest_side --upright --model ... --write")
 
 
 @register_stage
 class StandUprightStage(ShareCapStage):
     name = "stand_upright"
     metadata_key = "upright_rest"
+    fit_command = "python -m equipose.train.evaluation.rest_side --upright --model ... --write"
     after = "rest_side"
-
-    @classmethod
-    def parse(cls, text, source: str) -> dict | None:
-        return parse_upright_rest(text, source)
 
     def run(self, state: ObjectState) -> None:
         if state.up is not None or state.support_up is None or state.rotation is None:
@@ -59,3 +50,6 @@ class StandUprightStage(ShareCapStage):
                               state.translation[None], state.support_up)       # stood on its base, refitted
         state.set_pose(nearest_rotation(R[0]), t[0])
         state.extras["rest"] = "upright"
+
+
+parse_upright_rest = StandUprightStage.parse     # ``upright_rest`` metadata → {"cap": share, ...} or None
