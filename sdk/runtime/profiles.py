@@ -23,12 +23,13 @@ FAST = {"copies": False, "rescore": False, "view": False, "polish": False, "rest
 PROFILES: dict = {
     "accurate": {"*": {}},
     "default": {"*": {},                             # per model: settings measured within noise of accurate
-                # (docs/benchmarks.md, v0.24, v0.28, v0.29, v0.32, v0.33: full test sets, fp32 and int8)
+                # (docs/benchmarks.md, v0.24, v0.28, v0.29, v0.32, v0.33, v0.43: full test sets, fp32 and int8)
                 "airplane-complete": {"flip": {"templates": 4}, "rescore": {"k": 4}},
                 "airplane-partial": {"flip": {"templates": 2}, "turn": {"points": 128}},
                 "car-complete": {"upright": {"points": 64}, "rescore": {"iters": 8, "k": 4},
-                                 "frame_priors": {"mirror_iters": 3, "points": 1024}},
-                "chair-complete": {"frame_priors": {"points": 1024}, "rescore": {"k": 4, "points": 128}},
+                                 "frame_priors": {"mirror_iters": 3, "points": 1024, "mirror_coarse": 3}},
+                "chair-complete": {"frame_priors": {"points": 1024, "mirror_coarse": 3},
+                                   "rescore": {"k": 4, "points": 128}},
                 "sofa-complete": {"rescore": {"iters": 10, "k": 3}, "frame_priors": {"points": 1024},
                                   "upright": {"points": 64}},
                 "bottle-complete": {"rescore": {"iters": 15}},

@@ -126,8 +126,9 @@ def test_stage_options_thin_the_cloud_and_set_the_mirror_iterations(tiny_model, 
     path = tmp_path / "fp.onnx"
     shutil.copy(tiny_model, path)
     update_metadata(path, frame_priors={"steps": ["mirror"], "mirror_axis": "x", "max_deg": 45.0})
-    est = PoseEstimator(path, stages={"frame_priors": {"points": 300, "mirror_iters": 4}})
-    assert est.pipeline.get("frame_priors").describe() == {"steps": ["mirror"], "points": 300, "mirror_iters": 4}
+    est = PoseEstimator(path, stages={"frame_priors": {"points": 300, "mirror_iters": 4, "mirror_coarse": 2}})
+    assert est.pipeline.get("frame_priors").describe() == {"steps": ["mirror"], "points": 300, "mirror_iters": 4,
+                                                           "mirror_coarse": 2}
     pts = _sofa(rng) * 0.05 + [0.0, 0.0, 0.7]                                  # [P, 3] m
     from equipose.preprocess import prepare_points
     prep = prepare_points(pts, est.num_points, est.scale)
@@ -139,7 +140,8 @@ def test_stage_options_thin_the_cloud_and_set_the_mirror_iterations(tiny_model, 
     assert len(cloud) > 300 and len(thin) <= 300 and np.array_equal(thin, cloud[::step])
     assert state.cloud_points(len(cloud)) is cloud and state.cloud_points("input") is prep.model_points
     assert est.predict_points(pts).frame_priors is not None
-    for bad in ({"points": 8}, {"points": "all"}, {"points": True}, {"mirror_iters": 0}, {"mirror_iters": 2.5}):
+    for bad in ({"points": 8}, {"points": "all"}, {"points": True}, {"mirror_iters": 0}, {"mirror_iters": 2.5},
+                {"mirror_coarse": 0}, {"mirror_coarse": "fine"}):
         with pytest.raises(errors.ConfigError, match="frame_priors"):
             PoseEstimator(path, stages={"frame_priors": bad})
 
@@ -155,6 +157,22 @@ def test_mirror_iterations_are_the_fit_s_iterations(rng):
     assert np.array_equal(R_default, R_full)
     n_one = mirror_plane(pts, tilt[:, 0], 45.0, iters=1)[0]
     assert np.allclose(R_one[:, 0], n_one, atol=1e-9)
+
+
+def test_mirror_plane_coarse_to_fine(rng, posed):
+    from equipose.runtime.frame_priors import MIRROR_FINE
+    R, pts = posed
+    off = R @ Rotation.from_euler("y", 6, degrees=True).as_matrix()           # the mirror normal (x) tilted 6°
+    n_whole, d_whole, r_whole = mirror_plane(pts, off[:, 0])                  # every iteration on every point
+    n, d, r = mirror_plane(pts, off[:, 0], coarse=3)                           # coarse to fine
+    assert not np.array_equal(n, n_whole)                                      # the early iterations differ ...
+    assert np.degrees(np.arccos(min(1.0, n @ n_whole))) < 0.3 and abs(d - d_whole) < 0.005   # ... the plane does not
+    assert np.degrees(np.arccos(min(1.0, n @ R[:, 0]))) < 1.0
+    few = mirror_plane(pts, off[:, 0], iters=MIRROR_FINE, coarse=3)            # no early iterations: coarse is moot
+    assert np.array_equal(few[0], mirror_plane(pts, off[:, 0], iters=MIRROR_FINE)[0])
+    for bad in (0, 1.5, True):
+        with pytest.raises(errors.ConfigError, match="coarse"):
+            mirror_plane(pts, off[:, 0], coarse=bad)
 
 
 def test_mirror_plane_in_parts_equals_one_part(rng):
