@@ -25,6 +25,7 @@ import numpy as np
 
 from equipose.core.errors import ConfigError, MetadataError
 from equipose.core.metadata import float_entry
+from equipose.core.opening import top_closure
 
 __all__ = ["Stage", "ObjectState", "register_stage", "unregister_stage", "registered_stages", "stage_metadata_keys",
            "STAGE_ORDER", "cloud_points_option", "int_option", "MIN_FIT_POINTS", "ShareCapStage", "parse_share_cap"]
@@ -214,6 +215,7 @@ class ObjectState:
     top_k: int = 5
     extras: dict = field(default_factory=dict)
     crop: dict = field(default_factory=dict)
+    _closure: tuple | None = field(default=None, repr=False)      # (rotation, translation, Closure) last read
 
     @property
     def points(self) -> np.ndarray:
@@ -232,6 +234,17 @@ class ObjectState:
             return self.every_point if choice == "cloud" else self.points
         cloud = self.every_point
         return cloud[:: -(-len(cloud) // choice)] if len(cloud) > choice else cloud
+
+    def closure(self):
+        """``equipose.core.opening.top_closure`` of the input points along the pose's category z through its centre
+        (``cap``: the end the pose's +z points to; ``bottom``: the other), read once per pose: stages that read the
+        same pose share it."""
+        memo = self._closure
+        if memo is not None and np.array_equal(memo[0], self.rotation) and np.array_equal(memo[1], self.translation):
+            return memo[2]
+        ends = top_closure(self.points, self.rotation[:, 2], self.translation)
+        self._closure = (self.rotation.copy(), self.translation.copy(), ends)
+        return ends
 
     def set_pose(self, rotation, translation=None) -> None:
         """Replace the chosen pose (rotation [3, 3]; translation [3] model units, kept when None)."""

@@ -47,3 +47,17 @@ def test_the_evidence_reads_the_posed_top():
     down = evidence(posed_state(x, flipped, np.array([0.0, 0.0, 0.5]), canonical=canon @ flipped.T))
     assert up["top_cap"] == 0.0 and up["bottom_cap"] > 0.1 and up["top_taper"] > 0.2
     assert down["top_cap"] > 0.1 and down["bottom_cap"] == 0.0 and down["top_taper"] < -0.2
+
+
+def test_stages_share_one_reading_per_pose():
+    x = cup_view_points(seed=5)
+    state = posed_state(x, np.eye(3), np.array([0.0, 0.0, 0.5]), canonical=x - [0.0, 0.0, 0.5])
+    first = state.closure()
+    assert state.closure() is first                                            # the same pose: read once
+    assert first == top_closure(state.points, [0.0, 0.0, 1.0], [0.0, 0.0, 0.5])
+    flipped = np.diag([1.0, -1.0, -1.0])
+    state.set_pose(flipped)                                                    # a new pose: read again
+    again = state.closure()
+    assert again is not first and again.cap == pytest.approx(first.bottom) and again.bottom == pytest.approx(first.cap)
+    state.rotation = np.eye(3)                                                 # set directly, not via set_pose
+    assert state.closure() == first

@@ -63,7 +63,6 @@ import math
 import numpy as np
 
 from equipose.core.nearest import nearest_distances
-from equipose.core.opening import top_closure
 from equipose.runtime.stages.cylinder import AXIS_RATIO_CLIP
 from equipose.runtime.stage import ObjectState, Stage, register_stage
 
@@ -134,7 +133,7 @@ def evidence(state: ObjectState) -> dict:
     flip = state.extras.get("flip_margin", getattr(state.selection, "flip_margin", float("nan")))
     gap = _plane_gap(state, posed, rms)                                         # RMS radii, + above the plane
     cos_up = None if state.support_up is None else float(np.clip(state.rotation[:, 2] @ state.support_up, -1, 1))
-    ends = top_closure(x, state.rotation[:, 2], state.translation)           # the posed top: open or closed
+    ends = state.closure()                                                   # the posed top: open or closed
     return {
         "margin": float(state.confidence),
         "flip_margin": float(np.clip(flip, 0.0, 1.0)) if np.isfinite(flip) else 1.0,

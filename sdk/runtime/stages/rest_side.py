@@ -21,7 +21,6 @@ from __future__ import annotations
 import numpy as np
 
 from equipose.core.geometry import nearest_rotation
-from equipose.core.opening import top_closure
 from equipose.runtime.stage import ObjectState, ShareCapStage, register_stage
 from equipose.runtime.upright import upright_icp
 
@@ -42,7 +41,7 @@ class RestSideStage(ShareCapStage):
             return
         own = state.R[int(np.argmin(state.scores))]                            # [3, 3] the network's best, no prior
         own_up = float(own[:, 2] @ state.up)
-        cap = top_closure(state.points, state.rotation[:, 2], state.translation).cap
+        cap = state.closure().cap
         state.extras["rest_reading"] = {"own_up": own_up, "top_cap": cap}
         if self.cap is None or own_up >= 0.0 or cap < self.cap:
             return

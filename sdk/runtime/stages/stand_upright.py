@@ -21,7 +21,6 @@ direction.
 from __future__ import annotations
 
 from equipose.core.geometry import nearest_rotation
-from equipose.core.opening import top_closure
 from equipose.runtime.stage import ObjectState, ShareCapStage, register_stage
 from equipose.runtime.stages.rest_side import HALF_TURN_X
 from equipose.runtime.upright import upright_icp
@@ -42,7 +41,7 @@ class StandUprightStage(ShareCapStage):
         axis = state.rotation[:, 2]                                             # [3] the pose's category up
         if float(axis @ state.support_up) >= 0.0:                               # not posed on its opening
             return
-        ends = top_closure(state.points, axis, state.translation)              # the end facing up: ends.bottom
+        ends = state.closure()                                                  # the end facing up: ends.bottom
         state.extras["upright_reading"] = {"bottom_cap": ends.bottom, "top_taper": ends.taper}
         if self.cap is None or ends.bottom >= self.cap:
             return
