@@ -14,7 +14,6 @@ Convention: metres, camera frame; the ray runs from the camera through the true 
 """
 from __future__ import annotations
 
-import argparse
 import datetime
 import json
 import pathlib
@@ -25,6 +24,7 @@ import numpy as np
 from equipose.core.errors import ConfigError, EquiposeError
 from equipose.runtime.stages.centre import MAX_OFFSET_M
 from equipose.train.evaluation.confidence import RIGHT_M, occluded_views
+from equipose.train.evaluation.fit_cli import fit_parser
 
 __all__ = ["collect_centres", "fit_offset", "summarize_centres", "main"]
 
@@ -96,17 +96,11 @@ def summarize_centres(rows: list, offset: float = 0.0) -> dict:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--model", required=True)
-    ap.add_argument("--views", type=int, default=200)
-    ap.add_argument("--seed", type=int, default=7)
+    ap = fit_parser(__doc__, seed=7, write_help="store the fitted offset in the model file (and its stand-alone "
+                                                ".int8 sibling)")
     ap.add_argument("--split", choices=("train", "test"), default="train")
-    ap.add_argument("--data-root", dest="data_root")
-    ap.add_argument("--write", action="store_true", help="store the fitted offset in the model file (and its "
-                                                          "stand-alone .int8 sibling)")
     ap.add_argument("--offset", type=float, help="--split test: metres along the ray instead of the file's (0 = "
                                                   "the stage off)")
-    ap.add_argument("--json", help="write the summary and every row here")
     a = ap.parse_args(argv)
     from equipose import PoseEstimator
     if a.write and a.split != "train":

@@ -21,7 +21,6 @@ above every wrong), ECE over 10 equal-width bins, "confident-wrong" = error > 30
 """
 from __future__ import annotations
 
-import argparse
 import json
 import pathlib
 import sys
@@ -36,6 +35,7 @@ from equipose.eval.metrics import auroc
 from equipose.runtime.stages.confidence import (TURNED, below_runner_up, closed_top, logistic, open_bottom_up,
                                                 turned_closed_top)
 from equipose.runtime.stages.rest_side import HALF_TURN_X
+from equipose.train.evaluation.fit_cli import fit_parser
 
 __all__ = ["RIGHT_DEG", "RIGHT_M", "RIGHT_DIAG", "LYING_EVERY", "UPSIDE_DOWN_EVERY", "collect", "view_rest",
            "handle_parts", "occluded_views", "collect_modelnet", "fit_logistic", "auroc", "reliability", "summarize",
@@ -498,15 +498,9 @@ def _refresh_flags(rows: list, model: str, write: bool) -> int:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--model", required=True)
-    ap.add_argument("--views", type=int, default=240, help="tabletop models: rendered views")
+    ap = fit_parser(__doc__, views=240)
     ap.add_argument("--limit", type=int, help="ModelNet models: first K test instances")
-    ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--data-root", dest="data_root")
     ap.add_argument("--rows", help="fit on the rows of an earlier --json instead of rendering again")
-    ap.add_argument("--write", action="store_true", help="store the fit in the model file (and its .int8 sibling)")
-    ap.add_argument("--json", help="write the summary and every row here")
     ap.add_argument("--plot", help="write the held-out reliability diagram (PNG) here")
     ap.add_argument("--without", default="", help="comma-separated evidence features to leave out of the fit")
     ap.add_argument("--flags-only", dest="flags_only", action="store_true",

@@ -23,12 +23,12 @@ Convention: shares in [0, 1]; the truth's rest from the rendering ("standing" | 
 """
 from __future__ import annotations
 
-import argparse
 import json
 import pathlib
 import sys
 
 from equipose.core.errors import ConfigError, EquiposeError
+from equipose.train.evaluation.fit_cli import fit_parser
 
 __all__ = ["CANDIDATES", "UPRIGHT_CANDIDATES", "RATIO", "MAX_BROKEN", "collect_readings", "choose_cap",
            "choose_upright_cap", "main"]
@@ -109,13 +109,7 @@ def choose_upright_cap(rows: list) -> dict | None:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--model", required=True)
-    ap.add_argument("--views", type=int, default=200)
-    ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--data-root", dest="data_root")
-    ap.add_argument("--write", action="store_true")
-    ap.add_argument("--json", help="write the readings here")
+    ap = fit_parser(__doc__)
     ap.add_argument("--upright", action="store_true",
                     help="fit stand_upright (no prior: stand a pose on its opening upright) instead of rest_side")
     a = ap.parse_args(argv)
