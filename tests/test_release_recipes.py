@@ -141,8 +141,12 @@ def test_the_upright_fit_runs_before_the_confidence_it_changes():
         argvs = [s.argv for s in plan(r, state="-", skip_eval=True)]
         upright = [i for i, a in enumerate(argvs) if "equipose.train.evaluation.rest_side" in a and "--upright" in a]
         confidence = [i for i, a in enumerate(argvs) if "equipose.train.evaluation.confidence" in a]
-        assert bool(upright) is fitted and (not upright or upright[0] < confidence[0])
+        assert bool(upright) is fitted and (not upright or upright[-1] < confidence[0])
+        height = [i for i in upright if "--height" in argvs[i]]                # after the cap it merges into
+        assert (len(height) == 1 and height[0] > upright[0]) if fitted else not height
         assert ("upright_rest" in _metadata(name)) is fitted
+        if fitted:
+            assert 0.3 < json.loads(_metadata(name)["upright_rest"])["height"] < 0.6
 
 
 def test_kept_confidence_weights_refresh_only_the_flags():

@@ -129,3 +129,10 @@ def test_the_rest_side_threshold_needs_ten_fixes_per_break():
     assert choice["cap"] == 0.1 and choice["fixes"] == 40 and choice["breaks"] == 0   # 0.05 / 0.08 break 5 of 405
     assert choose_cap(up) is None
     assert choose_cap(down + [{**r, "top_cap": 0.3} for r in up]) is None       # 40 fixes against 5 breaks
+
+
+def test_the_upright_height_is_the_median_share_of_the_top():
+    from equipose.train.evaluation.rest_side import MIN_HEIGHT_ROWS, fit_height
+    rows = [{"centre_height": 0.04, "top_height": 0.1}] * 6 + [{"centre_height": 0.05, "top_height": 0.1}] * 5
+    assert fit_height(rows) == {"height": 0.4, "height_rows": 11}
+    assert fit_height(rows[: MIN_HEIGHT_ROWS - 1]) is None                     # too few results to fit on

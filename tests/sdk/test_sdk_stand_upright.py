@@ -66,9 +66,41 @@ def test_share_cap_metadata_and_options(stage, parse):
             parse(bad)
     assert stage.build(_Spec(None), {"cap": "auto"}, {}) is None
     assert stage.build(_Spec('{"cap": 0.1}'), {"cap": "auto"}, {}).cap == 0.1
-    assert stage.build(_Spec(None), {"cap": "read"}, {}).describe() == {"cap": "read"}
+    assert stage.build(_Spec(None), {"cap": "read"}, {}).describe()["cap"] == "read"
     with pytest.raises(errors.ConfigError):
         stage.build(_Spec(None), {"cap": 2.0}, {})
+
+
+def test_the_turned_centre_sits_at_its_share_of_the_top():
+    state = _state(upside_down=False)
+    state.support_offset = -1.0                    # posed_state's centre_m is 1 m up z: heights = the points' z
+    StandUprightStage(0.1, height=0.5).run(state)
+    top = state.extras["upright_reading"]["top_height"]
+    assert state.extras["rest"] == "upright" and 0.9 < top < 1.0              # the rim, 95th percentile
+    assert state.translation[2] == pytest.approx(0.5 * top)                   # model units = metres here
+    refit = _state(upside_down=False)
+    refit.support_offset = -1.0
+    StandUprightStage(0.1).run(refit)                                          # no height: the refit's centre
+    assert np.allclose(refit.rotation, state.rotation)
+    assert np.allclose(refit.translation[:2], state.translation[:2]) and refit.translation[2] != state.translation[2]
+
+
+def test_height_metadata_and_option():
+    entry = '{"cap": 0.1, "height": 0.45}'
+    assert parse_upright_rest(entry)["height"] == 0.45
+    for bad in ('{"cap": 0.1, "height": 0}', '{"cap": 0.1, "height": 1.5}', '{"cap": 0.1, "height": "x"}'):
+        with pytest.raises(errors.MetadataError, match="height"):
+            parse_upright_rest(bad)
+    build = StandUprightStage.build
+    assert build(_Spec(entry), {"cap": "auto", "height": "auto"}, {}).describe() == {"cap": 0.1, "height": 0.45}
+    assert build(_Spec('{"cap": 0.1}'), {"cap": "auto", "height": "auto"}, {}).height is None
+    assert build(_Spec(entry), {"cap": "auto", "height": False}, {}).height is None
+    assert build(_Spec(entry), {"cap": 0.05, "height": 0.3}, {}).height == 0.3
+    assert build(_Spec(None), {"cap": 0.05, "height": "auto"}, {}).height is None
+    assert build(_Spec(entry), {"cap": "read", "height": "auto"}, {}).height is None   # reading only
+    for bad in (0.0, 2.0, True, "half"):
+        with pytest.raises(errors.ConfigError, match="height"):
+            build(_Spec(entry), {"cap": "auto", "height": bad}, {})
 
 
 def test_place_in_the_pipeline():

@@ -19,6 +19,11 @@ Renders the confidence fit's tabletop views (``equipose.train.evaluation.confide
 ``--write`` stores {"cap", "fixes", "breaks", "fitted_on", ...} in the model file (and its int8 sibling); no threshold
 qualifying leaves the file as it is.
 
+``--upright --height`` fits ``stand_upright``'s centre height instead: on rendered views of the category's standing
+*training* shapes (point clouds; the test shapes stay for measuring), the results posed on their opening give rows of
+the true centre's height above the object's base against the stage's ``top_height`` reading; the median ratio is
+merged into the file's ``upright_rest`` as ``height`` (the cap stays; re-fitting the cap keeps the height).
+
 Convention: shares in [0, 1]; the truth's rest from the rendering ("standing" | "upside_down").
 """
 from __future__ import annotations
@@ -30,13 +35,14 @@ import sys
 from equipose.core.errors import ConfigError, EquiposeError
 from equipose.train.evaluation.fit_cli import fit_parser
 
-__all__ = ["CANDIDATES", "UPRIGHT_CANDIDATES", "RATIO", "MAX_BROKEN", "collect_readings", "choose_cap",
-           "choose_upright_cap", "main"]
+__all__ = ["CANDIDATES", "UPRIGHT_CANDIDATES", "RATIO", "MAX_BROKEN", "MIN_HEIGHT_ROWS", "collect_readings",
+           "choose_cap", "choose_upright_cap", "collect_heights", "fit_height", "main"]
 
 CANDIDATES = (0.05, 0.08, 0.1, 0.12, 0.15, 0.2)
 RATIO = 10.0            # fixes per break at least
 MAX_BROKEN = 0.01       # share of the upright results turned over at most
 UPRIGHT_CANDIDATES = (0.12, 0.1, 0.08, 0.05, 0.03, 0.02)   # stand_upright: bottom_cap thresholds, highest first
+MIN_HEIGHT_ROWS = 10    # stand_upright's height: fitted on at least this many results
 
 
 def collect_readings(model, views: int, seed: int, data_root=None, progress: bool = True,
@@ -71,6 +77,48 @@ def collect_readings(model, views: int, seed: int, data_root=None, progress: boo
             elif upright:                                                       # posed upright: nothing to turn
                 rows.append({"view": v, "prompt": prompt, "rest": rest, "bottom_cap": None})
     return rows
+
+
+def collect_heights(model, views: int, seed: int, data_root=None, progress: bool = True) -> list:
+    """Rows {"view", "prompt", "centre_height" (m: the true centre above the object's base), "top_height" (m: the
+    ``stand_upright`` reading)} of the results without a prior that pose a standing training shape on its opening
+    (what the stage turns), box and mask prompts."""
+    import numpy as np
+
+    from equipose import PoseEstimator
+    from equipose.train.data.modelnet import default_data_root
+    from equipose.train.data.tabletop import tabletop_sources
+    from equipose.train.evaluation.confidence import handle_parts, occluded_views
+
+    est = PoseEstimator(model, stages={"stand_upright": {"cap": "read"}})
+    sources = [src for src in tabletop_sources(data_root or default_data_root(), est.category, "train")
+               if "points" in src[1]]                                           # the point-cloud shapes
+    parts = handle_parts(est, sources)
+    rows = []
+    for v, s, view, _ in occluded_views(sources, views, seed, False, parts, desc=f"height {est.category}",
+                                        progress=progress, upside_down=False):
+        base = -float(np.min(np.asarray(sources[s][1]["points"])[:, 2]))      # m: centre above the base, standing
+        for prompt in ("box", "mask"):
+            region = {"box": view.box} if prompt == "box" else {"mask": view.mask}
+            try:
+                r = est.predict(view.depth, view.K, depth_unit="mm", **region)
+            except EquiposeError:
+                continue
+            reading = r.extras.get("upright_reading")
+            if reading is not None and reading["top_height"] > 0.0:
+                rows.append({"view": v, "prompt": prompt, "centre_height": base, "top_height": reading["top_height"]})
+    return rows
+
+
+def fit_height(rows: list) -> dict | None:
+    """{"height": the median of centre_height / top_height, "height_rows": n}, or None with fewer than
+    ``MIN_HEIGHT_ROWS`` rows."""
+    import numpy as np
+
+    if len(rows) < MIN_HEIGHT_ROWS:
+        return None
+    share = np.array([r["centre_height"] / r["top_height"] for r in rows])
+    return {"height": round(float(np.clip(np.median(share), 1e-3, 1.0)), 4), "height_rows": len(rows)}
 
 
 def _first_qualifying(candidates, turns, fixable: list, breakable: list, max_breaks: float) -> tuple | None:
@@ -112,12 +160,19 @@ def main(argv=None) -> int:
     ap = fit_parser(__doc__)
     ap.add_argument("--upright", action="store_true",
                     help="fit stand_upright (no prior: stand a pose on its opening upright) instead of rest_side")
+    ap.add_argument("--height", action="store_true",
+                    help="with --upright: fit the centre height of the results it turns (training shapes) instead of "
+                         "the cap, merged into the file's upright_rest")
     a = ap.parse_args(argv)
+    if a.height and not a.upright:
+        raise ConfigError("--height fits stand_upright's centre height: add --upright")
+    name = pathlib.Path(a.model).name
+    if a.height:
+        return _main_height(a, name)
     rows = collect_readings(a.model, a.views, a.seed, a.data_root, upright=a.upright)
     choice = choose_upright_cap(rows) if a.upright else choose_cap(rows)
     if a.json:
         pathlib.Path(a.json).write_text(json.dumps({"choice": choice, "rows": rows}, indent=1))
-    name = pathlib.Path(a.model).name
     if choice is None:
         what = "standing results upright as it turns upside-down" if a.upright else \
             "upside-down results right as it turns upright"
@@ -127,6 +182,8 @@ def main(argv=None) -> int:
         choice["fitted_on"] = f"{len(rows)} rendered occluded tabletop results without an up prior (seed {a.seed})"
         print(f"{name}: cap {choice['cap']}: fixes {choice['fixes']} standing results posed on their opening, breaks "
               f"{choice['breaks']} of the {choice['upside_down']} upside-down ones posed so ({len(rows)} results)")
+        kept = _upright_rest(a.model) or {}
+        choice.update({k: v for k, v in kept.items() if k.startswith("height")})   # a fitted height stays
     else:
         choice["fitted_on"] = f"{len(rows)} rendered occluded tabletop views under up='plane' (seed {a.seed})"
         print(f"{name}: cap {choice['cap']}: fixes {choice['fixes']} of {choice['upside_down']} upside-down results, "
@@ -134,6 +191,34 @@ def main(argv=None) -> int:
     if a.write:
         from equipose.export.onnx_export import update_metadata_with_int8
         update_metadata_with_int8(a.model, **{"upright_rest" if a.upright else "upside_down_rest": choice})
+    return 0
+
+
+def _upright_rest(model) -> dict | None:
+    """The model file's ``upright_rest`` entry (parsed), or None."""
+    from equipose.core.model_file import read_metadata
+    from equipose.runtime.stages.stand_upright import StandUprightStage
+    return StandUprightStage.parse(read_metadata(model).get("upright_rest"), str(model))
+
+
+def _main_height(a, name: str) -> int:
+    rows = collect_heights(a.model, a.views, a.seed, a.data_root)
+    fit = fit_height(rows)
+    if a.json:
+        pathlib.Path(a.json).write_text(json.dumps({"choice": fit, "rows": rows}, indent=1))
+    if fit is None:
+        print(f"{name}: {len(rows)} results posed a standing training shape on its opening (< {MIN_HEIGHT_ROWS}); "
+              "render more views; nothing written")
+        return 0
+    fit["height_fitted_on"] = (f"{len(rows)} rendered occluded results without an up prior posing a standing training "
+                               f"shape on its opening (seed {a.seed})")
+    print(f"{name}: height {fit['height']} (median centre height per top height over {len(rows)} results)")
+    if a.write:
+        entry = _upright_rest(a.model)
+        if entry is None:
+            raise ConfigError(f"{name} has no upright_rest cap: fit it first (--upright --write without --height)")
+        from equipose.export.onnx_export import update_metadata_with_int8
+        update_metadata_with_int8(a.model, upright_rest={**entry, **fit})
     return 0
 
 

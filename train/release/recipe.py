@@ -86,6 +86,7 @@ class Recipe:
     confidence_keep_weights: bool = False
     rest_side_views: int | None = None
     rest_side_upright_views: int | None = None
+    rest_side_upright_height_views: int | None = None
 
 
 def _text(v):
@@ -155,6 +156,8 @@ SCHEMA = {
     ("confidence", "keep_weights"): ("confidence_keep_weights", lambda v: isinstance(v, bool), "true or false"),
     ("rest_side", "views"): ("rest_side_views", _int(1), "rendered views, an integer ≥ 1"),
     ("rest_side", "upright_views"): ("rest_side_upright_views", _int(1), "rendered views, an integer ≥ 1"),
+    ("rest_side", "upright_height_views"): ("rest_side_upright_height_views", _int(1),
+                                            "rendered training views, an integer ≥ 1"),
 }
 TABLES = sorted({t for t, _ in SCHEMA if t})
 
@@ -191,7 +194,8 @@ def _check_combinations(r: Recipe, source: str) -> None:
     partial_only = {"[refine] visibility": r.refine_visibility is not None,
                     "[turn_classifier]": bool(r.turn_state or r.turn_copy_from),
                     "[centre]": r.centre_views is not None,
-                    "[rest_side]": r.rest_side_views is not None or r.rest_side_upright_views is not None}
+                    "[rest_side]": r.rest_side_views is not None or r.rest_side_upright_views is not None
+                    or r.rest_side_upright_height_views is not None}
     complete_only = {"rest_facet": r.rest_facet is not None, "frame_priors": r.frame_priors is not None}
     for what, used in partial_only.items():
         if used and r.mode != "partial":

@@ -116,6 +116,10 @@ def _file_steps(r: Recipe, f: str, views: int, skip_eval: bool) -> list:
         steps.append(_python("equipose.train.evaluation.rest_side", "--upright", "--model", model, "--views",
                              r.rest_side_upright_views, "--write",
                              title=f"{f} (and its int8 copy): when a pose on its opening is stood upright"))
+    if r.rest_side_upright_height_views and f == r.name:   # the centre of the poses stood upright (training shapes)
+        steps.append(_python("equipose.train.evaluation.rest_side", "--upright", "--height", "--model", model,
+                             "--views", r.rest_side_upright_height_views, "--write",
+                             title=f"{f} (and its int8 copy): the centre height of a pose stood upright"))
     if f == r.name:                                                            # also written into the int8 file
         keep = ["--flags-only"] if r.confidence_keep_weights else []
         steps.append(_python("equipose.train.evaluation.confidence", "--model", model, "--views", CONFIDENCE_VIEWS,
