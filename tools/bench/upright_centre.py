@@ -18,13 +18,12 @@ import sys
 import numpy as np
 
 from equipose import PoseEstimator
-from equipose.core.errors import EquiposeError
 
 
 def main(argv=None) -> int:
     from equipose.train.data.modelnet import default_data_root
     from equipose.train.data.tabletop import TABLETOP, tabletop_sources
-    from equipose.train.evaluation.confidence import handle_parts, occluded_views
+    from equipose.train.evaluation.confidence import handle_parts, occluded_views, view_results
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--model", required=True)
@@ -40,12 +39,7 @@ def main(argv=None) -> int:
     for v, _, view, rest in occluded_views(sources, a.views, a.seed, False, handle_parts(est, sources),
                                            desc=est.category, upside_down=TABLETOP[est.category].upside_down):
         up = view.R[:, 2]                                                      # [3] the true up (standing views)
-        for prompt in ("box", "mask"):
-            region = {"box": view.box} if prompt == "box" else {"mask": view.mask}
-            try:
-                r = est.predict(view.depth, view.K, depth_unit="mm", **region)
-            except EquiposeError:
-                continue
+        for prompt, _, r, _ in view_results(est, view):
             e = np.asarray(r.translation) - view.t                             # [3] m
             rows.append({"view": v, "prompt": prompt, "rest": rest, "turned": r.extras.get("rest") == "upright",
                          "axis_cos": float(r.rotation[:, 2] @ up), "error_mm": float(np.linalg.norm(e)) * 1e3,

@@ -21,14 +21,13 @@ import sys
 
 import numpy as np
 
-from equipose.core.errors import ConfigError, EquiposeError
+from equipose.core.errors import ConfigError
 from equipose.runtime.stages.centre import MAX_OFFSET_M
-from equipose.train.evaluation.confidence import RIGHT_M, occluded_views
+from equipose.train.evaluation.confidence import PROMPTS, RIGHT_M, occluded_views, view_results
 from equipose.train.evaluation.fit_cli import fit_parser
 
 __all__ = ["collect_centres", "fit_offset", "summarize_centres", "main"]
 
-PROMPTS = ("box", "mask")
 UPS = (None, "plane")
 
 
@@ -47,18 +46,12 @@ def collect_centres(est, views: int, seed: int, split: str = "train", data_root=
     for v, _, view, _ in occluded_views(sources, views, seed, est.metadata.get("shape_prior") == "cylinder",
                                         desc=f"centre {est.category}", progress=progress):
         ray = view.t / np.linalg.norm(view.t)                                  # [3] camera → true centre
-        for prompt in PROMPTS:
-            region = {"box": view.box} if prompt == "box" else {"mask": view.mask}
-            for up in UPS:
-                try:
-                    r = est.predict(view.depth, view.K, depth_unit="mm", up=up, **region)
-                except EquiposeError:
-                    continue
-                e = np.asarray(r.translation, np.float64) - view.t             # [3] m
-                along = float(e @ ray)
-                rows.append({"view": v, "prompt": prompt, "up": up or "none", "along": along,
-                             "across": float(np.linalg.norm(e - along * ray)), "error": float(np.linalg.norm(e)),
-                             "distance": float(np.linalg.norm(view.t)), "occluded": float(view.occluded)})
+        for prompt, up, r, _ in view_results(est, view, ups=UPS):
+            e = np.asarray(r.translation, np.float64) - view.t                 # [3] m
+            along = float(e @ ray)
+            rows.append({"view": v, "prompt": prompt, "up": up or "none", "along": along,
+                         "across": float(np.linalg.norm(e - along * ray)), "error": float(np.linalg.norm(e)),
+                         "distance": float(np.linalg.norm(view.t)), "occluded": float(view.occluded)})
     return rows
 
 

@@ -37,15 +37,16 @@ from equipose.runtime.stages.confidence import (TURNED, below_runner_up, closed_
 from equipose.runtime.stages.rest_side import HALF_TURN_X
 from equipose.train.evaluation.fit_cli import fit_parser
 
-__all__ = ["RIGHT_DEG", "RIGHT_M", "RIGHT_DIAG", "LYING_EVERY", "UPSIDE_DOWN_EVERY", "collect", "view_rest",
-           "handle_parts", "occluded_views", "collect_modelnet", "fit_logistic", "auroc", "reliability", "summarize",
-           "runner_up_margin", "closed_top_cap", "flag_rows", "main"]
+__all__ = ["RIGHT_DEG", "RIGHT_M", "RIGHT_DIAG", "LYING_EVERY", "UPSIDE_DOWN_EVERY", "PROMPTS", "collect", "view_rest",
+           "view_results", "handle_parts", "occluded_views", "collect_modelnet", "fit_logistic", "auroc", "reliability",
+           "summarize", "runner_up_margin", "closed_top_cap", "flag_rows", "main"]
 
 RIGHT_DEG = 10.0        # a right pose: rotation error ≤ this (modulo symmetry) ...
 RIGHT_M = 0.02          # ... and centre error ≤ this (metres)
 RIGHT_DIAG = 0.05       # ModelNet models: centre error ≤ this share of the bounding-box diagonal instead
 LYING_EVERY = 3         # cylinders: every third calibration view lies on its side
 UPSIDE_DOWN_EVERY = 8   # open containers (cups, mugs, bowls): every eighth stands on its opening
+PROMPTS = ("box", "mask")    # the calibration views' prompts: a detector's box, the visible mask
 WRONG_DEG = 30.0        # confident-wrong: error above this with confidence > 0.5, not flagged ambiguous
 L2 = 1e-3               # ridge on the standardised weights (per mean log-loss)
 
@@ -89,26 +90,18 @@ def collect(model, views: int, seed: int = 0, data_root=None, progress: bool = T
                                            desc=f"confidence {est.category}", progress=progress,
                                            upside_down=TABLETOP[est.category].upside_down if upside_down is None
                                            else upside_down):
-        for prompt in ("box", "mask"):
-            region = {"box": view.box} if prompt == "box" else {"mask": view.mask}
-            for up in (None, "plane"):
-                t0 = time.perf_counter()
-                try:
-                    r = est.predict(view.depth, view.K, depth_unit="mm", up=up, **region)
-                except EquiposeError:
-                    continue
-                ms = (time.perf_counter() - t0) * 1e3
-                rot = float(rotation_errors(r.rotation[None], view.R[None], symmetry, unsigned_axis=unsigned)[0])
-                centre = float(np.linalg.norm(r.translation - view.t))
-                axis = float(rotation_errors(r.rotation[None], view.R[None], "continuous:z", unsigned_axis=unsigned)[0])
-                rows.append({"shape": s, "view": v, "prompt": prompt, "up": up or "none",
-                             "rest": rest, "rot_err": rot, "axis_err": axis,
-                             "centre_err": centre, "right": bool(rot <= RIGHT_DEG and centre <= RIGHT_M),
-                             "confidence": float(r.confidence), "ambiguous": bool(r.ambiguous),
-                             "occluded": float(view.occluded), "ms": ms, **r.extras["evidence"]})
-                if handle is not None:
-                    rows[-1].update(handle_truth_px=view.part_pixels, handle_visible=bool(r.handle_visible),
-                                    handle_points=int(r.handle_points))
+        for prompt, up, r, ms in view_results(est, view, ups=(None, "plane")):
+            rot = float(rotation_errors(r.rotation[None], view.R[None], symmetry, unsigned_axis=unsigned)[0])
+            centre = float(np.linalg.norm(r.translation - view.t))
+            axis = float(rotation_errors(r.rotation[None], view.R[None], "continuous:z", unsigned_axis=unsigned)[0])
+            rows.append({"shape": s, "view": v, "prompt": prompt, "up": up or "none",
+                         "rest": rest, "rot_err": rot, "axis_err": axis,
+                         "centre_err": centre, "right": bool(rot <= RIGHT_DEG and centre <= RIGHT_M),
+                         "confidence": float(r.confidence), "ambiguous": bool(r.ambiguous),
+                         "occluded": float(view.occluded), "ms": ms, **r.extras["evidence"]})
+            if handle is not None:
+                rows[-1].update(handle_truth_px=view.part_pixels, handle_visible=bool(r.handle_visible),
+                                handle_points=int(r.handle_points))
     return rows
 
 
@@ -153,6 +146,21 @@ def occluded_views(sources: list, views: int, seed: int, lying: bool, parts: lis
         view = render_occluded(sources[s][1], np.random.default_rng([seed, v]), part=parts[s], rest=turns.get(rest))
         if view is not None:
             yield v, s, view, rest
+
+
+def view_results(est, view, ups=(None,)):
+    """Yield (prompt, up, ``PoseResult``, ms) for a rendered ``view`` (``OccludedView``) under each of ``ups``, with
+    the box prompt (the visible mask's bounding box, as a detector gives it) and the mask prompt, in that order; a
+    prediction the SDK refuses (``EquiposeError``) is left out. ms: the wall time of ``est.predict``."""
+    for prompt in PROMPTS:
+        region = {"box": view.box} if prompt == "box" else {"mask": view.mask}
+        for up in ups:
+            t0 = time.perf_counter()
+            try:
+                r = est.predict(view.depth, view.K, depth_unit="mm", up=up, **region)
+            except EquiposeError:
+                continue
+            yield prompt, up, r, (time.perf_counter() - t0) * 1e3
 
 
 def collect_modelnet(model, data_root=None, cache_dir=None, limit: int | None = None, progress: bool = True) -> list:

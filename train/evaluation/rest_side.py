@@ -32,7 +32,7 @@ import json
 import pathlib
 import sys
 
-from equipose.core.errors import ConfigError, EquiposeError
+from equipose.core.errors import ConfigError
 from equipose.train.evaluation.fit_cli import fit_parser
 
 __all__ = ["CANDIDATES", "UPRIGHT_CANDIDATES", "RATIO", "MAX_BROKEN", "MIN_HEIGHT_ROWS", "collect_readings",
@@ -53,7 +53,7 @@ def collect_readings(model, views: int, seed: int, data_root=None, progress: boo
     from equipose import PoseEstimator
     from equipose.train.data.modelnet import default_data_root
     from equipose.train.data.tabletop import TABLETOP, tabletop_sources
-    from equipose.train.evaluation.confidence import handle_parts, occluded_views
+    from equipose.train.evaluation.confidence import handle_parts, occluded_views, view_results
 
     stage, up, extra = ("stand_upright", None, "upright_reading") if upright else ("rest_side", "plane", "rest_reading")
     est = PoseEstimator(model, stages={stage: {"cap": "read"}})
@@ -65,12 +65,7 @@ def collect_readings(model, views: int, seed: int, data_root=None, progress: boo
     rows = []
     for v, _, view, rest in occluded_views(sources, views, seed, False, parts, desc=f"rest_side {est.category}",
                                            progress=progress, upside_down=True):
-        for prompt in ("box", "mask"):
-            region = {"box": view.box} if prompt == "box" else {"mask": view.mask}
-            try:
-                r = est.predict(view.depth, view.K, depth_unit="mm", up=up, **region)
-            except EquiposeError:
-                continue
+        for prompt, _, r, _ in view_results(est, view, ups=(up,)):
             reading = r.extras.get(extra)
             if reading is not None:
                 rows.append({"view": v, "prompt": prompt, "rest": rest, **reading})
@@ -88,7 +83,7 @@ def collect_heights(model, views: int, seed: int, data_root=None, progress: bool
     from equipose import PoseEstimator
     from equipose.train.data.modelnet import default_data_root
     from equipose.train.data.tabletop import tabletop_sources
-    from equipose.train.evaluation.confidence import handle_parts, occluded_views
+    from equipose.train.evaluation.confidence import handle_parts, occluded_views, view_results
 
     est = PoseEstimator(model, stages={"stand_upright": {"cap": "read"}})
     sources = [src for src in tabletop_sources(data_root or default_data_root(), est.category, "train")
@@ -98,12 +93,7 @@ def collect_heights(model, views: int, seed: int, data_root=None, progress: bool
     for v, s, view, _ in occluded_views(sources, views, seed, False, parts, desc=f"height {est.category}",
                                         progress=progress, upside_down=False):
         base = -float(np.min(np.asarray(sources[s][1]["points"])[:, 2]))      # m: centre above the base, standing
-        for prompt in ("box", "mask"):
-            region = {"box": view.box} if prompt == "box" else {"mask": view.mask}
-            try:
-                r = est.predict(view.depth, view.K, depth_unit="mm", **region)
-            except EquiposeError:
-                continue
+        for prompt, _, r, _ in view_results(est, view):
             reading = r.extras.get("upright_reading")
             if reading is not None and reading["top_height"] > 0.0:
                 rows.append({"view": v, "prompt": prompt, "centre_height": base, "top_height": reading["top_height"]})
