@@ -138,21 +138,21 @@ class _Pairing:
 
 def _mirror_iterations(pairing, n0, n, d, first, iters, cos_max, trim, step) -> tuple:
     """Iterations ``first`` … ``first + iters − 1`` of ``mirror_plane`` on ``pairing``'s cloud from the plane (n, d):
-    (normal [3], offset, stopped: the bound or a fixed point ended them)."""
+    (normal [3], offset); they end early at the bound or a fixed point."""
     for k in range(first, first + iters):
         pairing(n, d)
         cand, d_new, cos0 = _plane_from_pairs(pairing.X, pairing.pair, pairing.d2, n, n0, trim)
         if cos0 < cos_max:
-            return n, d, True
+            return n, d
         if d_new == d and np.all(cand == n):                                  # a fixed point: every further
-            return n, d, True                                                 # iteration repeats this one
+            return n, d                                                       # iteration repeats this one
         if k > 0 and step != 1.0:                     # the plane creeps in one direction: go ``step`` times as far
             ext = n + step * (cand - n)
             ext /= np.linalg.norm(ext)
             if ext @ n0 >= cos_max:                                           # within the bound
                 cand, d_new = ext, d + step * (d_new - d)
         n, d = cand, d_new
-    return n, d, False
+    return n, d
 
 
 def mirror_plane(points, normal, max_deg: float = MAX_DEG, iters: int = MIRROR_ITERS, step: float = MIRROR_STEP,
@@ -166,8 +166,9 @@ def mirror_plane(points, normal, max_deg: float = MAX_DEG, iters: int = MIRROR_I
     stays within the bound; chair and car, complete: the same 5° accuracy in about half the iterations). Stops before
     a step that would leave ``max_deg`` of ``normal``, and at a fixed point (a step that returns the plane it started
     from). ``coarse`` > 1, coarse to fine: all but the last ``MIRROR_FINE`` iterations pair every ``coarse``-th
-    point among themselves, the last ones and the residual use the whole cloud (chair-complete, 8 iterations at
-    stride 3: the same test-set accuracy for the queries of about 5 passes over the whole cloud instead of 9). Compiled queries (``equipose.core.nearest``), in parts side by side.
+    point among themselves, the last ones and the residual use the whole cloud: at stride 3 and 8 iterations the
+    queries of about 5 passes over the whole cloud instead of 9 (accuracy per model: docs/benchmarks.md, v0.43).
+    Compiled queries (``equipose.core.nearest``), in parts side by side.
     Returns (unit normal [3] signed like ``normal``, offset d with the plane n·x = d, mean squared reflection
     residual).
     """
@@ -181,9 +182,9 @@ def mirror_plane(points, normal, max_deg: float = MAX_DEG, iters: int = MIRROR_I
     fine = min(iters, MIRROR_FINE) if coarse > 1 else iters
     if iters > fine:                                                          # the early iterations on a thinned cloud
         thin = _Pairing(np.ascontiguousarray(P[::int(coarse)]))              # [⌈P / coarse⌉, 3]
-        n, d, _ = _mirror_iterations(thin, n0, n, d, 0, iters - fine, cos_max, _MIRROR_TRIM, step)
+        n, d = _mirror_iterations(thin, n0, n, d, 0, iters - fine, cos_max, _MIRROR_TRIM, step)
     whole = _Pairing(P)
-    n, d, _ = _mirror_iterations(whole, n0, n, d, iters - fine, fine, cos_max, _MIRROR_TRIM, step)
+    n, d = _mirror_iterations(whole, n0, n, d, iters - fine, fine, cos_max, _MIRROR_TRIM, step)
     whole(n, d)                                                               # the residual of the final plane
     return n, float(d), float(whole.d2.mean())
 

@@ -9,7 +9,7 @@ turns the pose over (a half turn about the category x axis) and refits its azimu
 support plane's normal (``equipose.runtime.upright.upright_icp``).
 
 The refit finds the azimuth, but not the height: the network's canonical shape was decoded for the pose it chose,
-and turned over it sits 1–3 cm too high on rendered bowls. Where the file holds a ``height`` h, the centre is set
+and turned over it can sit centimetres too high (docs/results/real/README.md, v0.43). Where the file holds a ``height`` h, the centre is set
 instead to h × the height of the object's top above the plane (the 95th percentile of its crop points' heights): a
 container's centre sits at a share of its height that varies little within a category.
 
@@ -52,7 +52,6 @@ class StandUprightStage(ShareCapStage):
     metadata_key = "upright_rest"
     fit_command = "python -m equipose.train.evaluation.rest_side --upright --model ... --write"
     after = "rest_side"
-
     options = {"cap": "auto", "height": "auto"}
 
     def __init__(self, cap: float | None, height: float | None = None):
