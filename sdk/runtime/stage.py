@@ -28,9 +28,10 @@ from equipose.core.metadata import float_entry
 from equipose.core.opening import top_closure
 
 __all__ = ["Stage", "ObjectState", "register_stage", "unregister_stage", "registered_stages", "stage_metadata_keys",
-           "STAGE_ORDER", "cloud_points_option", "int_option", "MIN_FIT_POINTS", "ShareCapStage", "parse_share_cap"]
+           "STAGE_ORDER", "TOP_PERCENTILE", "cloud_points_option", "int_option", "MIN_FIT_POINTS", "ShareCapStage", "parse_share_cap"]
 
 STAGE_ORDER: list = []          # stage names in run order (registration inserts each after its ``after``)
+TOP_PERCENTILE = 95.0           # ``ObjectState.top_height``: this percentile of the crop points' heights
 _REGISTRY: dict = {}
 
 
@@ -245,6 +246,19 @@ class ObjectState:
         ends = top_closure(self.points, self.rotation[:, 2], self.translation)
         self._closure = (self.rotation.copy(), self.translation.copy(), ends)
         return ends
+
+    def top_height(self) -> float:
+        """Height (m) of the object's top above its support plane: ``TOP_PERCENTILE`` of its crop points' heights.
+        Needs ``support_up``."""
+        heights = self.prep.to_metres(self.every_point) @ self.support_up + self.support_offset    # [P] m
+        return float(np.percentile(heights, TOP_PERCENTILE))
+
+    def at_height(self, translation, height_m: float) -> np.ndarray:
+        """``translation`` [3] (model units) moved along the support plane's normal so that the centre lies
+        ``height_m`` metres above the plane. Needs ``support_up``."""
+        t = np.asarray(translation, np.float64)
+        now = float(self.prep.to_metres(t) @ self.support_up + self.support_offset)                # m above the plane
+        return t + (height_m - now) / self.prep.scale * np.asarray(self.support_up, np.float64)
 
     def set_pose(self, rotation, translation=None) -> None:
         """Replace the chosen pose (rotation [3, 3]; translation [3] model units, kept when None)."""

@@ -27,7 +27,7 @@ __all__ = ["InstanceStage"]
 class InstanceStage(Stage):
     name = "instance"
     modes = ("instance",)
-    after = "handle"
+    after = "seat"
 
     def __init__(self, model, scale: float):
         self.model, self.scale = model, float(scale)

@@ -27,23 +27,13 @@ direction.
 """
 from __future__ import annotations
 
-import numpy as np
-
 from equipose.core.errors import ConfigError, MetadataError
 from equipose.core.geometry import nearest_rotation
 from equipose.runtime.stage import ObjectState, ShareCapStage, register_stage
 from equipose.runtime.stages.rest_side import HALF_TURN_X
 from equipose.runtime.upright import upright_icp
 
-__all__ = ["StandUprightStage", "parse_upright_rest", "TOP_PERCENTILE", "top_height"]
-
-TOP_PERCENTILE = 95.0           # the object's top: this percentile of its crop points' heights above the plane
-
-
-def top_height(state: ObjectState) -> float:
-    """Height (m) of the object's top above its support plane: ``TOP_PERCENTILE`` of its crop points' heights."""
-    heights = state.prep.to_metres(state.every_point) @ state.support_up + state.support_offset   # [P] m
-    return float(np.percentile(heights, TOP_PERCENTILE))
+__all__ = ["StandUprightStage", "parse_upright_rest"]
 
 
 @register_stage
@@ -96,17 +86,13 @@ class StandUprightStage(ShareCapStage):
         if float(axis @ state.support_up) >= 0.0:                               # not posed on its opening
             return
         ends = state.closure()                                                  # the end facing up: ends.bottom
-        top = top_height(state)                                                 # m above the plane
+        top = state.top_height()                                                # m above the plane
         state.extras["upright_reading"] = {"bottom_cap": ends.bottom, "top_taper": ends.taper, "top_height": top}
         if self.cap is None or ends.bottom >= self.cap:
             return
-        up = state.support_up
         R, t, _ = upright_icp(state.points, state.canonical_category, (state.rotation @ HALF_TURN_X)[None],
-                              state.translation[None], up)                      # stood on its base, refitted
-        t = t[0]                                                                # [3] model units
-        if self.height is not None:                                             # the centre at its share of the top
-            now = float(state.prep.to_metres(t) @ up + state.support_offset)    # m above the plane
-            t = t + (self.height * top - now) / state.prep.scale * up
+                              state.translation[None], state.support_up)       # stood on its base, refitted
+        t = t[0] if self.height is None else state.at_height(t[0], self.height * top)   # [3] model units
         state.set_pose(nearest_rotation(R[0]), t)
         state.extras["rest"] = "upright"
 
