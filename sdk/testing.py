@@ -11,7 +11,8 @@ Convention:
 
 Use ``assert_equivariant(fn, points)`` in tests of any layer or model; ``torch_model_fn`` and ``onnx_model_fn``
 adapt a torch module or an onnxruntime session to a model function. ``posed_state`` builds the per-object state a
-pipeline stage runs on (``equipose.runtime.stage``), for testing a stage on its own.
+pipeline stage runs on (``equipose.runtime.stage``), for testing a stage on its own; ``MetadataSpec`` the model spec
+a stage's ``build`` reads its metadata entry from.
 """
 from __future__ import annotations
 
@@ -21,7 +22,7 @@ import numpy as np
 
 from equipose.core import icosahedral
 __all__ = ["cup_view_points", "assert_equivariant", "equivariance_errors", "torch_model_fn", "torch_layer_fn", "onnx_model_fn",
-           "posed_state"]
+           "posed_state", "MetadataSpec"]
 
 ModelFn = Callable[[np.ndarray], dict]
 
@@ -119,6 +120,17 @@ def onnx_model_fn(session) -> ModelFn:
         return io.run(session, np.ascontiguousarray(points, dtype=np.float32))
 
     return fn
+
+
+class MetadataSpec:
+    """A stand-in model spec for ``Stage.build``: every metadata key holds ``value`` (None: absent); ``name`` as a
+    ``ModelSpec``'s."""
+
+    def __init__(self, value, name: str = "m"):
+        self.value, self.name = value, name
+
+    def get(self, key, default=None):
+        return default if self.value is None else self.value
 
 
 def posed_state(points, rotation, translation, *, canonical=None, symmetry: str = "none", up=None):

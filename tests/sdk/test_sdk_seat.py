@@ -6,7 +6,7 @@ import pytest
 from equipose import errors
 from equipose.runtime.stage import STAGE_ORDER
 from equipose.runtime.stages.seat import SEAT_DEG, SeatStage, parse_seat
-from equipose.testing import cup_view_points, posed_state
+from equipose.testing import cup_view_points, MetadataSpec, posed_state
 
 UP = np.array([0.0, 0.0, 1.0])
 
@@ -46,28 +46,18 @@ def test_left_where_it_does_not_stand_or_only_reads(tilt, plane, height):
     assert ("seat_reading" in state.extras) is (plane and tilt < SEAT_DEG)
 
 
-class _Spec:
-    name = "m"
-
-    def __init__(self, value):
-        self.value = value
-
-    def get(self, key):
-        return self.value
-
-
 def test_metadata_and_options():
     assert parse_seat('{"height": 0.47, "height_rows": 400}')["height"] == 0.47 and parse_seat(None) is None
     for bad in ('{"height": 0}', '{"height": 1.5}', '{"nope": 1}', "not json"):
         with pytest.raises(errors.MetadataError):
             parse_seat(bad)
-    assert SeatStage.build(_Spec(None), {"height": "auto"}, {}) is None       # no fitted share: off
-    assert SeatStage.build(_Spec('{"height": 0.47}'), {"height": "auto"}, {}).height == 0.47
-    assert SeatStage.build(_Spec(None), {"height": 0.4}, {}).describe() == {"height": 0.4}
-    assert SeatStage.build(_Spec(None), {"height": "read"}, {}).describe() == {"height": "read"}
+    assert SeatStage.build(MetadataSpec(None), {"height": "auto"}, {}) is None       # no fitted share: off
+    assert SeatStage.build(MetadataSpec('{"height": 0.47}'), {"height": "auto"}, {}).height == 0.47
+    assert SeatStage.build(MetadataSpec(None), {"height": 0.4}, {}).describe() == {"height": 0.4}
+    assert SeatStage.build(MetadataSpec(None), {"height": "read"}, {}).describe() == {"height": "read"}
     for bad in (0.0, 2.0, True, "half"):
         with pytest.raises(errors.ConfigError, match="seat height"):
-            SeatStage.build(_Spec(None), {"height": bad}, {})
+            SeatStage.build(MetadataSpec(None), {"height": bad}, {})
 
 
 def test_place_in_the_pipeline():

@@ -7,7 +7,7 @@ from equipose import errors
 from equipose.runtime.stage import STAGE_ORDER
 from equipose.runtime.stages.rest_side import HALF_TURN_X, RestSideStage, parse_upside_down_rest
 from equipose.runtime.stages.stand_upright import StandUprightStage, parse_upright_rest
-from equipose.testing import cup_view_points, posed_state
+from equipose.testing import cup_view_points, MetadataSpec, posed_state
 
 UP = np.array([0.0, 0.0, 1.0])
 
@@ -46,17 +46,6 @@ def test_no_turn_without_the_contradiction(upside_down, posed_down, cap, up, pla
     assert ("upright_reading" in state.extras) is (posed_down and up is None and plane)
 
 
-class _Spec:
-    """A model spec holding one metadata value."""
-    name = "m"
-
-    def __init__(self, value):
-        self.value = value
-
-    def get(self, key):
-        return self.value
-
-
 @pytest.mark.parametrize("stage, parse", [(RestSideStage, parse_upside_down_rest),
                                           (StandUprightStage, parse_upright_rest)])
 def test_share_cap_metadata_and_options(stage, parse):
@@ -64,11 +53,11 @@ def test_share_cap_metadata_and_options(stage, parse):
     for bad in ('{"cap": 0}', '{"cap": 1.5}', '{"nope": 1}', "not json"):
         with pytest.raises(errors.MetadataError):
             parse(bad)
-    assert stage.build(_Spec(None), {"cap": "auto"}, {}) is None
-    assert stage.build(_Spec('{"cap": 0.1}'), {"cap": "auto"}, {}).cap == 0.1
-    assert stage.build(_Spec(None), {"cap": "read"}, {}).describe()["cap"] == "read"
+    assert stage.build(MetadataSpec(None), {"cap": "auto"}, {}) is None
+    assert stage.build(MetadataSpec('{"cap": 0.1}'), {"cap": "auto"}, {}).cap == 0.1
+    assert stage.build(MetadataSpec(None), {"cap": "read"}, {}).describe()["cap"] == "read"
     with pytest.raises(errors.ConfigError):
-        stage.build(_Spec(None), {"cap": 2.0}, {})
+        stage.build(MetadataSpec(None), {"cap": 2.0}, {})
 
 
 def test_the_turned_centre_sits_at_its_share_of_the_top():
@@ -92,15 +81,15 @@ def test_height_metadata_and_option():
         with pytest.raises(errors.MetadataError, match="height"):
             parse_upright_rest(bad)
     build = StandUprightStage.build
-    assert build(_Spec(entry), {"cap": "auto", "height": "auto"}, {}).describe() == {"cap": 0.1, "height": 0.45}
-    assert build(_Spec('{"cap": 0.1}'), {"cap": "auto", "height": "auto"}, {}).height is None
-    assert build(_Spec(entry), {"cap": "auto", "height": False}, {}).height is None
-    assert build(_Spec(entry), {"cap": 0.05, "height": 0.3}, {}).height == 0.3
-    assert build(_Spec(None), {"cap": 0.05, "height": "auto"}, {}).height is None
-    assert build(_Spec(entry), {"cap": "read", "height": "auto"}, {}).height is None   # reading only
+    assert build(MetadataSpec(entry), {"cap": "auto", "height": "auto"}, {}).describe() == {"cap": 0.1, "height": 0.45}
+    assert build(MetadataSpec('{"cap": 0.1}'), {"cap": "auto", "height": "auto"}, {}).height is None
+    assert build(MetadataSpec(entry), {"cap": "auto", "height": False}, {}).height is None
+    assert build(MetadataSpec(entry), {"cap": 0.05, "height": 0.3}, {}).height == 0.3
+    assert build(MetadataSpec(None), {"cap": 0.05, "height": "auto"}, {}).height is None
+    assert build(MetadataSpec(entry), {"cap": "read", "height": "auto"}, {}).height is None   # reading only
     for bad in (0.0, 2.0, True, "half"):
         with pytest.raises(errors.ConfigError, match="height"):
-            build(_Spec(entry), {"cap": "auto", "height": bad}, {})
+            build(MetadataSpec(entry), {"cap": "auto", "height": bad}, {})
 
 
 def test_place_in_the_pipeline():

@@ -36,7 +36,7 @@ from equipose.core.errors import ConfigError
 from equipose.train.evaluation.fit_cli import fit_parser
 
 __all__ = ["CANDIDATES", "UPRIGHT_CANDIDATES", "RATIO", "MAX_BROKEN", "MIN_HEIGHT_ROWS", "collect_readings",
-           "choose_cap", "choose_upright_cap", "collect_heights", "fit_height", "main"]
+           "choose_cap", "choose_upright_cap", "collect_heights", "fit_height", "report_height", "main"]
 
 CANDIDATES = (0.05, 0.08, 0.1, 0.12, 0.15, 0.2)
 RATIO = 10.0            # fixes per break at least
@@ -191,19 +191,26 @@ def _upright_rest(model) -> dict | None:
     return StandUprightStage.parse(read_metadata(model).get("upright_rest"), str(model))
 
 
-def _main_height(a, name: str) -> int:
-    rows = collect_heights(a.model, a.views, a.seed, a.data_root)
+def report_height(a, name: str, rows: list, posed: str, fitted_key: str) -> dict | None:
+    """``fit_height`` of ``rows`` reported as the height fits' command lines do (``a``: their parsed arguments):
+    ``--json`` written, the share printed (or why nothing is written), the fit stamped with what it was fitted on
+    (``fitted_key``: ``posed`` names the results). None where too few results were posed so."""
     fit = fit_height(rows)
     if a.json:
         pathlib.Path(a.json).write_text(json.dumps({"choice": fit, "rows": rows}, indent=1))
     if fit is None:
-        print(f"{name}: {len(rows)} results posed a standing training shape on its opening (< {MIN_HEIGHT_ROWS}); "
-              "render more views; nothing written")
-        return 0
-    fit["height_fitted_on"] = (f"{len(rows)} rendered occluded results without an up prior posing a standing training "
-                               f"shape on its opening (seed {a.seed})")
+        print(f"{name}: {len(rows)} results {posed} (< {MIN_HEIGHT_ROWS}); render more views; nothing written")
+        return None
+    fit[fitted_key] = f"{len(rows)} rendered occluded results {posed} (seed {a.seed})"
     print(f"{name}: height {fit['height']} (median centre height per top height over {len(rows)} results)")
-    if a.write:
+    return fit
+
+
+def _main_height(a, name: str) -> int:
+    rows = collect_heights(a.model, a.views, a.seed, a.data_root)
+    fit = report_height(a, name, rows, "without an up prior posing a standing training shape on its opening",
+                        "height_fitted_on")
+    if fit is not None and a.write:
         entry = _upright_rest(a.model)
         if entry is None:
             raise ConfigError(f"{name} has no upright_rest cap: fit it first (--upright --write without --height)")

@@ -14,7 +14,6 @@ Convention: heights in metres; the object frame's z up, its origin at the centre
 """
 from __future__ import annotations
 
-import json
 import pathlib
 import sys
 
@@ -22,7 +21,7 @@ import numpy as np
 
 from equipose.core.errors import ConfigError
 from equipose.train.evaluation.fit_cli import fit_parser
-from equipose.train.evaluation.rest_side import MIN_HEIGHT_ROWS, fit_height
+from equipose.train.evaluation.rest_side import report_height
 
 __all__ = ["collect_seat_rows", "main"]
 
@@ -55,19 +54,10 @@ def collect_seat_rows(model, views: int, seed: int, data_root=None, progress: bo
 def main(argv=None) -> int:
     ap = fit_parser(__doc__, views=150)
     a = ap.parse_args(argv)
-    name = pathlib.Path(a.model).name
     rows = collect_seat_rows(a.model, a.views, a.seed, a.data_root)
-    fit = fit_height(rows)
-    if a.json:
-        pathlib.Path(a.json).write_text(json.dumps({"choice": fit, "rows": rows}, indent=1))
-    if fit is None:
-        print(f"{name}: {len(rows)} results posed a standing training shape upright (< {MIN_HEIGHT_ROWS}); render "
-              "more views; nothing written")
-        return 0
-    fit["fitted_on"] = (f"{len(rows)} rendered occluded results posing a standing training shape upright, box and "
-                        f"mask, with and without up='plane' (seed {a.seed})")
-    print(f"{name}: height {fit['height']} (median centre height per top height over {len(rows)} results)")
-    if a.write:
+    fit = report_height(a, pathlib.Path(a.model).name, rows, "posing a standing training shape upright, box and mask, "
+                        "with and without up='plane'", "fitted_on")
+    if fit is not None and a.write:
         from equipose.export.onnx_export import update_metadata_with_int8
         update_metadata_with_int8(a.model, seat=fit)
     return 0
