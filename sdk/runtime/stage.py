@@ -28,7 +28,8 @@ from equipose.core.metadata import float_entry
 from equipose.core.opening import top_closure
 
 __all__ = ["Stage", "ObjectState", "register_stage", "unregister_stage", "registered_stages", "stage_metadata_keys",
-           "STAGE_ORDER", "TOP_PERCENTILE", "cloud_points_option", "int_option", "MIN_FIT_POINTS", "ShareCapStage", "parse_share_cap"]
+           "STAGE_ORDER", "TOP_PERCENTILE", "cloud_points_option", "int_option", "MIN_FIT_POINTS", "ShareCapStage",
+           "parse_share_cap", "is_share"]
 
 STAGE_ORDER: list = []          # stage names in run order (registration inserts each after its ``after``)
 TOP_PERCENTILE = 95.0           # ``ObjectState.top_height``: this percentile of the crop points' heights
@@ -59,12 +60,19 @@ class Stage:
         return {}
 
 
-def parse_share_cap(text, name: str, source: str, hint: str) -> dict | None:
-    """A ``{"cap": share, ...}`` metadata entry ``name`` (JSON string or dict) → the dict with ``cap`` a float in
-    (0, 1], or None when absent. Raises ``MetadataError`` naming the command that writes it (``hint``) when malformed."""
-    d = float_entry(text, name, "cap", source, hint)
-    if d is not None and not (math.isfinite(d["cap"]) and 0.0 < d["cap"] <= 1.0):
-        raise MetadataError(f"{source}: {name} cap must be a share in (0, 1], got {d['cap']}")
+def is_share(value) -> bool:
+    """Whether ``value`` is a share: a finite number in (0, 1] (not a bool)."""
+    return not isinstance(value, bool) and isinstance(value, (int, float)) and math.isfinite(value) and \
+        0.0 < value <= 1.0
+
+
+def parse_share_cap(text, name: str, source: str, hint: str, key: str = "cap") -> dict | None:
+    """A ``{key: share, ...}`` metadata entry ``name`` (JSON string or dict) → the dict with ``key`` a float in
+    (0, 1], or None when absent. Raises ``MetadataError`` naming the command that writes it (``hint``) when
+    malformed."""
+    d = float_entry(text, name, key, source, hint)
+    if d is not None and not is_share(d[key]):
+        raise MetadataError(f"{source}: {name} {key} must be a share in (0, 1], got {d[key]}")
     return d
 
 
@@ -92,7 +100,7 @@ class ShareCapStage(Stage):
             return None if d is None else cls(d["cap"])
         if isinstance(cap, str) and cap == "read":
             return cls(None)
-        if isinstance(cap, bool) or not isinstance(cap, (int, float)) or not 0.0 < cap <= 1.0:
+        if not is_share(cap):
             raise ConfigError(f"{cls.name} cap must be 'auto', 'read' or a share in (0, 1], got {cap!r}")
         return cls(float(cap))
 

@@ -35,8 +35,9 @@ import sys
 from equipose.core.errors import ConfigError
 from equipose.train.evaluation.fit_cli import fit_parser
 
-__all__ = ["CANDIDATES", "UPRIGHT_CANDIDATES", "RATIO", "MAX_BROKEN", "MIN_HEIGHT_ROWS", "collect_readings",
-           "choose_cap", "choose_upright_cap", "collect_heights", "fit_height", "report_height", "main"]
+__all__ = ["CANDIDATES", "UPRIGHT_CANDIDATES", "RATIO", "MAX_BROKEN", "MIN_HEIGHT_ROWS", "HEIGHT_READINGS",
+           "collect_readings", "choose_cap", "choose_upright_cap", "collect_heights", "fit_height", "report_height",
+           "main"]
 
 CANDIDATES = (0.05, 0.08, 0.1, 0.12, 0.15, 0.2)
 RATIO = 10.0            # fixes per break at least
@@ -74,29 +75,42 @@ def collect_readings(model, views: int, seed: int, data_root=None, progress: boo
     return rows
 
 
-def collect_heights(model, views: int, seed: int, data_root=None, progress: bool = True) -> list:
-    """Rows {"view", "prompt", "centre_height" (m: the true centre above the object's base), "top_height" (m: the
-    ``stand_upright`` reading)} of the results without a prior that pose a standing training shape on its opening
-    (what the stage turns), box and mask prompts."""
+HEIGHT_READINGS = {                 # stage → (its read-only options, the up priors, the result extra it reads into)
+    "stand_upright": ({"cap": "read"}, (None,), "upright_reading"),
+    "seat": ({"height": "read"}, (None, "plane"), "seat_reading"),
+}
+
+
+def collect_heights(model, views: int, seed: int, data_root=None, progress: bool = True,
+                    stage: str = "stand_upright") -> list:
+    """Rows {"view", "prompt", "up", "centre_height" (m: the true centre above the object's base), "top_height" (m:
+    the stage's reading)} of the results where ``stage`` reads a standing training shape, box and mask prompts:
+    ``stand_upright`` without a prior, where the pose stands it on its opening (what the stage turns); ``seat``
+    without and with ``up="plane"``, where the pose stands it upright."""
     import numpy as np
 
     from equipose import PoseEstimator
     from equipose.train.data.modelnet import default_data_root
-    from equipose.train.data.tabletop import tabletop_sources
+    from equipose.train.data.tabletop import TABLETOP, tabletop_sources
     from equipose.train.evaluation.confidence import handle_parts, occluded_views, view_results
 
-    est = PoseEstimator(model, stages={"stand_upright": {"cap": "read"}})
+    read, ups, extra = HEIGHT_READINGS[stage]
+    est = PoseEstimator(model, stages={stage: read})
+    if est.category not in TABLETOP:
+        raise ConfigError(f"{stage}'s height is fitted on tabletop models ({', '.join(TABLETOP)}), not "
+                          f"{est.category!r}")
     sources = [src for src in tabletop_sources(data_root or default_data_root(), est.category, "train")
                if "points" in src[1]]                                           # the point-cloud shapes
     parts = handle_parts(est, sources)
     rows = []
-    for v, s, view, _ in occluded_views(sources, views, seed, False, parts, desc=f"height {est.category}",
+    for v, s, view, _ in occluded_views(sources, views, seed, False, parts, desc=f"{stage} {est.category}",
                                         progress=progress, upside_down=False):
         base = -float(np.min(np.asarray(sources[s][1]["points"])[:, 2]))      # m: centre above the base, standing
-        for prompt, _, r, _ in view_results(est, view):
-            reading = r.extras.get("upright_reading")
+        for prompt, up, r, _ in view_results(est, view, ups=ups):
+            reading = r.extras.get(extra)
             if reading is not None and reading["top_height"] > 0.0:
-                rows.append({"view": v, "prompt": prompt, "centre_height": base, "top_height": reading["top_height"]})
+                rows.append({"view": v, "prompt": prompt, "up": up or "none", "centre_height": base,
+                             "top_height": reading["top_height"]})
     return rows
 
 

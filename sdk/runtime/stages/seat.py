@@ -4,11 +4,11 @@ height of its top.
 A fitted pose places a cup's or bowl's centre by its shape, and on a single view that shape's height is the least
 certain thing about it: the centre sits a few millimetres too high or too low, more so under the up prior, which
 holds the axis and leaves only the centre to fit (docs/results/real/README.md, v0.43). The view itself gives the
-height: a container standing on the plane reaches its top (``ObjectState.top_height``, the 95th percentile of its crop
-points' heights above the plane), and its centre sits at a share of that height that varies
-little within a category. Where the pose's category z lies within ``SEAT_DEG`` of the support plane's normal (with or
-without an up prior, and after ``stand_upright`` turned a pose upright; after the handle), the centre moves along the normal to the
-file's ``height`` × the top's height.
+height: a container standing on the plane reaches its top (``ObjectState.top_height``, the 95th percentile of its
+crop points' heights above the plane), and its centre sits at a share of that height that varies little within a
+category. Where the pose's category z lies within ``SEAT_DEG`` of the support plane's normal (with or without an up
+prior, and after ``stand_upright`` turned a pose upright; after the handle), the centre moves along the normal to
+the file's ``height`` × the top's height.
 
 ``seat`` JSON {"height": h, ...} holds h, the median share over the standing results of rendered training shapes
 (``python -m equipose.train.evaluation.seat``). Option ``height``: "auto" (the file's; absent: the stage does not run),
@@ -22,9 +22,8 @@ from __future__ import annotations
 
 import math
 
-from equipose.core.errors import ConfigError, MetadataError
-from equipose.core.metadata import float_entry
-from equipose.runtime.stage import ObjectState, Stage, register_stage
+from equipose.core.errors import ConfigError
+from equipose.runtime.stage import ObjectState, Stage, is_share, parse_share_cap, register_stage
 
 __all__ = ["SeatStage", "SEAT_DEG", "parse_seat"]
 
@@ -34,12 +33,8 @@ FIT_COMMAND = "python -m equipose.train.evaluation.seat --model ... --write"
 
 def parse_seat(text, source: str = "model") -> dict | None:
     """``seat`` metadata (JSON string or dict) → the dict with ``height`` a float in (0, 1], or None. Raises
-    ``MetadataError`` when malformed."""
-    d = float_entry(text, "seat", "height", source, FIT_COMMAND)
-    if d is not None and not (math.isfinite(d["height"]) and 0.0 < d["height"] <= 1.0):
-        raise MetadataError(f"{source}: seat height must be a share in (0, 1], got {d['height']}; re-run "
-                            f"'{FIT_COMMAND}'")
-    return d
+    ``MetadataError`` when malformed (``parse_share_cap``)."""
+    return parse_share_cap(text, "seat", source, FIT_COMMAND, key="height")
 
 
 @register_stage
@@ -61,7 +56,7 @@ class SeatStage(Stage):
             return None if d is None else cls(d["height"])
         if isinstance(height, str) and height == "read":
             return cls(None)
-        if isinstance(height, bool) or not isinstance(height, (int, float)) or not 0.0 < height <= 1.0:
+        if not is_share(height):
             raise ConfigError(f"seat height must be 'auto', 'read' or a share in (0, 1] (the centre's height above "
                               f"the support plane per height of the object's top), got {height!r}")
         return cls(float(height))

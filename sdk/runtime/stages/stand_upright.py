@@ -9,9 +9,10 @@ turns the pose over (a half turn about the category x axis) and refits its azimu
 support plane's normal (``equipose.runtime.upright.upright_icp``).
 
 The refit finds the azimuth, but not the height: the network's canonical shape was decoded for the pose it chose,
-and turned over it can sit centimetres too high (docs/results/real/README.md, v0.43). Where the file holds a ``height`` h, the centre is set
-instead to h × the height of the object's top above the plane (the 95th percentile of its crop points' heights): a
-container's centre sits at a share of its height that varies little within a category.
+and turned over it can sit centimetres too high (docs/results/real/README.md, v0.43). Where the file holds a
+``height`` h, the centre is set instead to h × the height of the object's top above the plane (the 95th percentile
+of its crop points' heights): a container's centre sits at a share of its height that varies little within a
+category.
 
 ``upright_rest`` JSON {"cap": c, "height": h, ...} holds c, chosen on rendered views where the turn fixes at least ten
 times as many results as it breaks (``equipose.train.evaluation.rest_side --upright``), and h, the median share on
@@ -29,7 +30,7 @@ from __future__ import annotations
 
 from equipose.core.errors import ConfigError, MetadataError
 from equipose.core.geometry import nearest_rotation
-from equipose.runtime.stage import ObjectState, ShareCapStage, register_stage
+from equipose.runtime.stage import ObjectState, ShareCapStage, is_share, register_stage
 from equipose.runtime.stages.rest_side import HALF_TURN_X
 from equipose.runtime.upright import upright_icp
 
@@ -55,7 +56,7 @@ class StandUprightStage(ShareCapStage):
         d = super().parse(text, source)
         if d is not None and "height" in d:
             h = d["height"]
-            if isinstance(h, bool) or not isinstance(h, (int, float)) or not 0.0 < h <= 1.0:
+            if not is_share(h):
                 raise MetadataError(f"{source}: upright_rest height must be a share in (0, 1], got {h!r}; re-run "
                                     f"'{cls.fit_command.replace('--write', '--height --write')}'")
             d["height"] = float(h)
@@ -69,7 +70,7 @@ class StandUprightStage(ShareCapStage):
             return stage
         if isinstance(height, str) and height == "auto":
             stage.height = (cls.parse(spec.get(cls.metadata_key), spec.name) or {}).get("height")
-        elif isinstance(height, bool) or not isinstance(height, (int, float)) or not 0.0 < height <= 1.0:
+        elif not is_share(height):
             raise ConfigError(f"stand_upright height must be 'auto', False or a share in (0, 1] (the centre's height "
                               f"above the support plane per height of the object's top), got {height!r}")
         else:
