@@ -56,6 +56,10 @@ def test_recipe_is_valid_and_describes_the_shipped_file(name):
     assert (priors is not None) == (r.frame_priors is not None)
     if priors and r.frame_priors not in ("auto", "none"):
         assert [s.partition(":")[0] for s in r.frame_priors.split(",")] == priors["steps"]
+    risk = json.loads(meta.get("flip_risk") or "null")
+    assert (risk is not None) == (r.flip_risk_views is not None)
+    if risk:
+        assert risk["flag_share"] == r.flip_risk_flag_share and 0.0 < risk["threshold"] < 1.0
     metrics = json.loads(meta["metrics"])
     assert metrics["test_set"].split(" ")[0] == f"{r.export_category}/{r.eval_mode}"
     assert metrics["icp60_samples"] == min(r.eval_icp_samples, metrics["n"])
@@ -97,6 +101,9 @@ def test_complete_model_rejects_partial_options_and_needs_category(tmp_path):
     p.write_text('category = "sofa"\nmode = "complete"\n[refine]\nvisibility = 1.0\n')
     with pytest.raises(ConfigError, match="partial-view"):
         load_recipe(p)
+    p.write_text('category = "sofa"\nmode = "complete"\n[flip_risk]\nviews = 4\n')
+    with pytest.raises(ConfigError, match="partial-view"):
+        load_recipe(p)
     p.write_text('mode = "complete"\n')
     with pytest.raises(ConfigError, match="'category' is required"):
         load_recipe(p)
@@ -127,7 +134,9 @@ def test_dry_run_lists_the_steps(capsys):
             "--pool 24",
             f"python -m equipose.train.fitting.turn_classifier --model {m} {turn}"]
         if f == "car-partial":                                             # written into both files
-            expected.append(f"python -m equipose.train.evaluation.confidence --model {m} --views 200 --write")
+            expected += [f"python -m equipose.train.evaluation.flip_risk --model {m} --views 4 --flag-share 0.3 "
+                         "--write",
+                         f"python -m equipose.train.evaluation.confidence --model {m} --views 200 --write"]
         expected += [
             f"equipose eval --model {m} --category car --mode partial --icp-samples 100 "
             f"--json docs/results/models/{f}.json --plot docs/results/models/{f}.png --store-metrics "

@@ -51,6 +51,9 @@ class PoseResult:
         turn_margin: models with a turn classifier (metadata ``turn_classifier``, ``equipose.runtime.turn_classifier``):
             the pose's lead in logits over its best-scoring half turn (small = unsure; sets ``ambiguous`` below the
             file's ``ambiguous_margin``), else None.
+        flip_risk: models with a fitted flip risk (metadata ``flip_risk``, ``equipose.runtime.stages.flip_risk``): the
+            estimated chance that the pose is turned by about a half turn (error > 150°); ``ambiguous`` where it
+            reaches the file's threshold. Else None.
         frame_priors: models with metadata ``frame_priors`` (``equipose.runtime.frame_priors``): degrees each step
             turned the pose ({"mirror": 0.8, "footprint": -1.2}; None for a step that left it), else None.
         extras: what further pipeline stages add (``equipose.runtime.stage``), JSON-ready, by field name.
@@ -86,6 +89,7 @@ class PoseResult:
     up_source: str | None = None
     flip_margin: float | None = None
     turn_margin: float | None = None
+    flip_risk: float | None = None
     frame_priors: dict | None = None
     agreement: float | None = None
     extras: dict = field(default_factory=dict)
@@ -172,6 +176,8 @@ class PoseResult:
             d["flip_margin"] = round(float(self.flip_margin), 6)
         if self.turn_margin is not None:
             d["turn_margin"] = round(float(self.turn_margin), 4)
+        if self.flip_risk is not None:
+            d["flip_risk"] = round(float(self.flip_risk), 4)
         if self.handle_visible is not None:
             d["handle_visible"] = bool(self.handle_visible)
             d["handle_points"] = int(self.handle_points)

@@ -87,6 +87,9 @@ class Recipe:
     rest_side_views: int | None = None
     rest_side_upright_views: int | None = None
     rest_side_upright_height_views: int | None = None
+    flip_risk_views: int | None = None
+    flip_risk_shapes: int | None = None
+    flip_risk_flag_share: float = 0.3
 
 
 def _text(v):
@@ -158,6 +161,9 @@ SCHEMA = {
     ("rest_side", "upright_views"): ("rest_side_upright_views", _int(1), "rendered views, an integer ≥ 1"),
     ("rest_side", "upright_height_views"): ("rest_side_upright_height_views", _int(1),
                                             "rendered training views, an integer ≥ 1"),
+    ("flip_risk", "views"): ("flip_risk_views", _int(1), "rendered views per training shape, an integer ≥ 1"),
+    ("flip_risk", "shapes"): ("flip_risk_shapes", _int(1), "the first N training shapes, an integer ≥ 1"),
+    ("flip_risk", "flag_share"): ("flip_risk_flag_share", _float(0, 1, open_lo=True), "a share in (0, 1)"),
 }
 TABLES = sorted({t for t, _ in SCHEMA if t})
 
@@ -193,7 +199,7 @@ def _flatten(data: dict, source: str) -> dict:
 def _check_combinations(r: Recipe, source: str) -> None:
     partial_only = {"[refine] visibility": r.refine_visibility is not None,
                     "[turn_classifier]": bool(r.turn_state or r.turn_copy_from),
-                    "[centre]": r.centre_views is not None,
+                    "[centre]": r.centre_views is not None, "[flip_risk]": r.flip_risk_views is not None,
                     "[rest_side]": r.rest_side_views is not None or r.rest_side_upright_views is not None
                     or r.rest_side_upright_height_views is not None}
     complete_only = {"rest_facet": r.rest_facet is not None, "frame_priors": r.frame_priors is not None}

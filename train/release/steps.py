@@ -106,6 +106,11 @@ def _file_steps(r: Recipe, f: str, views: int, skip_eval: bool) -> list:
     if r.frame_priors is not None:
         steps.append(_python("equipose.export.frame_priors", "--model", model, "--category", r.category,
                              "--steps", r.frame_priors, title=f"{f}: frame priors ({r.frame_priors})"))
+    if r.flip_risk_views and f == r.name:           # before the confidence fit: its flag is what the confidence reads
+        shapes = [] if r.flip_risk_shapes is None else ["--shapes", r.flip_risk_shapes]
+        steps.append(_python("equipose.train.evaluation.flip_risk", "--model", model, "--views", r.flip_risk_views,
+                             *shapes, "--flag-share", r.flip_risk_flag_share, "--write",
+                             title=f"{f} (and its int8 copy): the chance of a half turn, and its flag"))
     if r.centre_views and f == r.name:              # before the confidence fit: the offset decides which are right
         steps.append(_python("equipose.train.evaluation.centre", "--model", model, "--views", r.centre_views,
                              "--write", title=f"{f} (and its int8 copy): the centre's depth offset"))

@@ -64,6 +64,7 @@ import numpy as np
 
 from equipose.core.nearest import nearest_distances
 from equipose.runtime.stages.cylinder import AXIS_RATIO_CLIP
+from equipose.runtime.stages.flip_risk import flip_margin_reading
 from equipose.runtime.stage import ObjectState, Stage, register_stage
 
 __all__ = ["ConfidenceStage", "FAR", "TURNED", "evidence", "logistic", "below_runner_up", "closed_top",
@@ -130,13 +131,12 @@ def evidence(state: ObjectState) -> dict:
     n_crop = crop.get("inliers", len(x))
     visible = bool(state.extras.get("handle_visible"))                          # mugs; False without a handle stage
     fit = state.extras.get("handle_fit") if visible else None                  # (share, mass) of the handle fit
-    flip = state.extras.get("flip_margin", getattr(state.selection, "flip_margin", float("nan")))
     gap = _plane_gap(state, posed, rms)                                         # RMS radii, + above the plane
     cos_up = None if state.support_up is None else float(np.clip(state.rotation[:, 2] @ state.support_up, -1, 1))
     ends = state.closure()                                                   # the posed top: open or closed
     return {
         "margin": float(state.confidence),
-        "flip_margin": float(np.clip(flip, 0.0, 1.0)) if np.isfinite(flip) else 1.0,
+        "flip_margin": flip_margin_reading(state),
         "residual": float(d_obs.mean() / rms),
         "outliers": float(np.mean(d_obs > FAR * rms)),
         "coverage": float(np.mean(d_shape < FAR * rms)),

@@ -37,7 +37,7 @@ LYING_ICP_ITERS = 8         # ICP steps that re-centre a can turned onto its sid
 class CylinderStage(Stage):
     name = "cylinder"
     metadata_key = "shape_prior"
-    after = "turn"
+    after = "flip_risk"
 
     def __init__(self, unsigned: bool = True):
         self.unsigned = bool(unsigned)                                          # the axis has no sign (a can)
