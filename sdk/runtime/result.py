@@ -14,7 +14,7 @@ import numpy as np
 
 from equipose.core.frame_error import FrameError  # noqa: F401  (re-exported: its home is the core)
 from equipose.core.geometry import matrix_to_quaternion
-from equipose.core.symmetry import canonicalise_rotation, parse_symmetry
+from equipose.core.symmetry import HALF_TURNS, canonicalise_rotation, parse_symmetry
 
 __all__ = ["PoseResult", "FrameError"]
 
@@ -54,6 +54,8 @@ class PoseResult:
         flip_risk: models with a fitted flip risk (metadata ``flip_risk``, ``equipose.runtime.stages.flip_risk``): the
             estimated chance that the pose is turned by about a half turn (error > 150°); ``ambiguous`` where it
             reaches the file's threshold. Else None.
+        flip_axis: models with a turn classifier: the category axis ("x", "y" or "z") of the half turn of the pose
+            that scored next best, the likeliest other reading of the view (``flip_rotation``), else None.
         frame_priors: models with metadata ``frame_priors`` (``equipose.runtime.frame_priors``): degrees each step
             turned the pose ({"mirror": 0.8, "footprint": -1.2}; None for a step that left it), else None.
         extras: what further pipeline stages add (``equipose.runtime.stage``), JSON-ready, by field name.
@@ -90,6 +92,7 @@ class PoseResult:
     flip_margin: float | None = None
     turn_margin: float | None = None
     flip_risk: float | None = None
+    flip_axis: str | None = None
     frame_priors: dict | None = None
     agreement: float | None = None
     extras: dict = field(default_factory=dict)
@@ -118,6 +121,12 @@ class PoseResult:
         front, dropped by the crop: ``crop["occluded_fraction"]``); None for masks and point input."""
         v = self.crop.get("occluded_fraction") if self.crop else None
         return None if v is None else float(v)
+
+    @property
+    def flip_rotation(self) -> np.ndarray | None:
+        """[3, 3] the pose turned by its half turn about ``flip_axis`` (category → camera; the translation stays):
+        what to try where ``ambiguous`` or a high ``flip_risk`` says the pose may be turned. None without one."""
+        return None if self.flip_axis is None else self.rotation @ HALF_TURNS[self.flip_axis]
 
     @property
     def quaternion(self) -> np.ndarray:
@@ -178,6 +187,9 @@ class PoseResult:
             d["turn_margin"] = round(float(self.turn_margin), 4)
         if self.flip_risk is not None:
             d["flip_risk"] = round(float(self.flip_risk), 4)
+        if self.flip_axis is not None:
+            d["flip_axis"] = self.flip_axis
+            d["flip_rotation"] = np.round(self.flip_rotation, 6).tolist()
         if self.handle_visible is not None:
             d["handle_visible"] = bool(self.handle_visible)
             d["handle_points"] = int(self.handle_points)

@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 
 from equipose import PoseEstimator, errors
+from equipose.core.symmetry import HALF_TURNS
 from equipose.runtime.stage import STAGE_ORDER
 from equipose.runtime.stages.flip_risk import (TURN_CLIP, FlipRiskStage, flip_features, flip_margin_reading,
                                                flip_risk, parse_flip_risk)
@@ -80,6 +81,8 @@ def test_the_shipped_car_partial_reports_its_flip_risk():
     rng = np.random.default_rng(3)
     r = est.predict_points(rng.normal(size=(800, 3)) * [0.9, 0.4, 0.3] + [0.0, 0.0, 2.0])
     assert 0.0 <= r.flip_risk <= 1.0 and r.to_dict()["flip_risk"] == round(r.flip_risk, 4)
+    turn = r.rotation.T @ r.flip_rotation                                       # the runner-up: a half turn
+    assert np.allclose(turn, HALF_TURNS[r.flip_axis], atol=1e-9)
     assert r.ambiguous == (r.flip_risk >= est.pipeline.stages["flip_risk"].threshold) or \
         r.extras["evidence"]["margin"] < est.metadata["confidence_calibration"].get("runner_up_margin", 0.0)
     off = PoseEstimator("car-partial", stages={"flip_risk": False})

@@ -12,7 +12,7 @@ from equipose import PoseEstimator, errors
 from equipose.core.geometry import rotation_angle_deg
 from equipose.core.metadata import encode_turn_classifier
 from equipose.runtime.hypotheses import HALF_TURNS
-from equipose.runtime.stages.turn import TurnStage
+from equipose.runtime.stages.turn import TurnStage, relative_turn
 from equipose.runtime.turn_classifier import TurnScorer, score_sets, turned_sets
 from equipose.testing import posed_state
 
@@ -87,6 +87,20 @@ def test_turn_stage_keeps_the_pose_within_the_margin_and_flags_a_near_tie(rng):
     assert state.extras["turn_margin"] < 0 and state.ambiguous
 
 
+def test_the_runner_up_half_turn_is_reported_relative_to_the_kept_pose(rng):
+    """The mean-x scorer on three axes, the pose turned about y: the set turned back about y wins, and the set turned
+    about z ties with it (both read the true mean x, as a turn about x keeps x). Relative to the kept (true) pose
+    that runner-up is its half turn about x."""
+    stage = TurnStage(_mean_x_scorer(axes=("x", "y", "z")))
+    R_true = Rotation.from_euler("zyx", [-40, 15, 5], degrees=True).as_matrix()
+    y = rng.normal(size=(256, 3)) + [0.5, 0, 0]
+    state = posed_state(y @ R_true.T, R_true @ HALF_TURNS["y"], np.zeros(3))     # turned about y
+    stage.run(state)
+    assert rotation_angle_deg(state.rotation, R_true) < 1e-4                     # turned back
+    assert state.extras["flip_axis"] == "x" and abs(state.extras["turn_margin"]) < 1e-5   # the tie
+    assert [relative_turn(a, b) for a, b in ((None, "z"), ("x", None), ("x", "y"), ("z", "x"))] == ["z", "x", "z", "y"]
+
+
 @pytest.mark.parametrize("change, message", [
     (lambda d: d.update(axes=["w"]), "axes"),
     (lambda d: d["head"][0].update(shape=[1, 6]), "malformed|chain"),
@@ -114,7 +128,9 @@ def test_model_with_a_turn_classifier(tiny_model, tmp_path, rng):
     pts = rng.normal(size=(400, 3)) * [0.05, 0.03, 0.02] + [0, 0, 0.8]
     res = est.predict_points(pts)
     assert res.turn_margin is not None and res.turn_margin >= 0                   # the kept pose leads its turns
-    assert "turn_margin" in res.to_dict()
+    assert "turn_margin" in res.to_dict() and res.flip_axis in ("x", "y", "z")
+    assert rotation_angle_deg(res.flip_rotation, res.rotation) == pytest.approx(180.0, abs=1e-4)
+    assert res.to_dict()["flip_rotation"] == np.round(res.flip_rotation, 6).tolist()
     plain = PoseEstimator(tiny_model, threads=1).predict_points(pts)
     turned = rotation_angle_deg(res.rotation, plain.rotation)
     assert turned < 1e-4 or turned > 179.0                                        # itself or a half turn of it

@@ -1,6 +1,8 @@
 """Stage ``turn`` (metadata ``turn_classifier``): a small learned scorer of the view's canonical points decides
 between the pose and its half turns (``equipose.runtime.turn_classifier``); under an up prior only the turn about up.
-Result extra ``turn_margin``: the pose's lead in logits (below the file's ``ambiguous_margin``: ``ambiguous``).
+Result extras ``turn_margin``: the pose's lead in logits (below the file's ``ambiguous_margin``: ``ambiguous``), and
+``flip_axis``: the category axis of the half turn of the reported pose that scored next best (``R @ HALF_TURNS[a]``,
+``PoseResult.flip_rotation``).
 Option ``points``: view points scored (evenly spaced along the model input).
 
 Convention: model units, centred camera frame; rotation category → camera.
@@ -12,7 +14,15 @@ from equipose.runtime.stage import ObjectState, Stage, register_stage
 from equipose.core.errors import ConfigError
 from equipose.runtime.turn_classifier import TURN_POINTS, TurnScorer, turned_sets
 
-__all__ = ["TurnStage"]
+__all__ = ["TurnStage", "relative_turn"]
+
+
+def relative_turn(a: str | None, b: str | None) -> str:
+    """The axis of the half turn that takes the pose turned about ``a`` to the pose turned about ``b`` (None: not
+    turned; ``a`` ≠ ``b``): the half turns about x, y and z commute, and two different ones make the third."""
+    if a is None or b is None:
+        return a or b
+    return ({"x", "y", "z"} - {a, b}).pop()
 
 
 @register_stage
@@ -42,11 +52,13 @@ class TurnStage(Stage):
         if not axes:
             return
         s = self.scorer(turned_sets(state.points, state.rotation, state.translation, axes, self.points))  # [1 + A]
+        turns = [None] + axes                                                   # each set's turn of the pose
         k = int(s[1:].argmax())
-        if s[1 + k] - s[0] > self.turn["margin"]:
-            state.set_pose(state.rotation @ HALF_TURNS[axes[k]])
-            s = s[[1 + k] + [j for j in range(len(s)) if j != 1 + k]]          # the turn is the pose now
-        lead = float(s[0] - s[1:].max()) if len(s) > 1 else float("inf")
-        state.extras["turn_margin"] = lead
-        if lead < self.turn["ambiguous_margin"]:
+        chosen = 1 + k if s[1 + k] - s[0] > self.turn["margin"] else 0
+        if chosen:
+            state.set_pose(state.rotation @ HALF_TURNS[axes[k]])               # the turn is the pose now
+        rival = max((j for j in range(len(s)) if j != chosen), key=lambda j: s[j])
+        state.extras["turn_margin"] = float(s[chosen] - s[rival])
+        state.extras["flip_axis"] = relative_turn(turns[chosen], turns[rival])
+        if state.extras["turn_margin"] < self.turn["ambiguous_margin"]:
             state.ambiguous = True
