@@ -106,10 +106,13 @@ def draw_pose(image, K, result, *, axis_length: float | None = None, color=(0, 2
 
 
 def pose_label(result) -> str:
-    """One line saying what a result is and how sure: "#3 mug conf 0.42 AMBIGUOUS (handle hidden)"."""
+    """One line saying what a result is and how sure: "#3 mug conf 0.42 AMBIGUOUS (handle hidden)", "car conf 0.61
+    turned? 0.38 AMBIGUOUS (may be turned)" (with a ``flip_risk``)."""
     hidden = getattr(result, "handle_visible", None) is False                   # (that also sets ambiguous)
     flag = " AMBIGUOUS (handle hidden)" if hidden else (" AMBIGUOUS (may be turned)" if result.ambiguous else "")
-    txt = f"{result.category or 'object'} conf {result.confidence:.2f}" + flag
+    risk = getattr(result, "flip_risk", None)
+    txt = f"{result.category or 'object'} conf {result.confidence:.2f}" + \
+        ("" if risk is None else f" turned? {risk:.2f}") + flag
     return txt if result.object_id is None else f"#{result.object_id} {txt}"
 
 

@@ -117,3 +117,12 @@ def test_the_fit_flags_its_share_and_ranks_flips_above_the_rest():
         fit([dict(r, flipped=False) for r in rows])
     with pytest.raises(errors.ConfigError, match="flag-share"):
         fit(rows, flag_share=1.0)
+
+
+def test_the_overlay_label_shows_the_flip_risk():
+    from types import SimpleNamespace
+
+    from equipose.runtime.overlay import pose_label
+    r = SimpleNamespace(category="car", confidence=0.61, ambiguous=True, object_id=None, flip_risk=0.38)
+    assert pose_label(r) == "car conf 0.61 turned? 0.38 AMBIGUOUS (may be turned)"
+    assert pose_label(SimpleNamespace(category="mug", confidence=0.5, ambiguous=False, object_id=3)) == "#3 mug conf 0.50"

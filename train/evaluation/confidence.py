@@ -39,7 +39,7 @@ from equipose.train.evaluation.fit_cli import fit_parser
 
 __all__ = ["RIGHT_DEG", "RIGHT_M", "RIGHT_DIAG", "LYING_EVERY", "UPSIDE_DOWN_EVERY", "PROMPTS", "collect", "view_rest",
            "view_results", "handle_parts", "occluded_views", "collect_modelnet", "fit_logistic", "auroc", "reliability",
-           "summarize", "runner_up_margin", "closed_top_cap", "flag_rows", "main"]
+           "summarize", "runner_up_margin", "closed_top_cap", "flag_rows", "grouped_log_loss", "feature_matrix", "main"]
 
 RIGHT_DEG = 10.0        # a right pose: rotation error ≤ this (modulo symmetry) ...
 RIGHT_M = 0.02          # ... and centre error ≤ this (metres)
@@ -224,12 +224,13 @@ def _signs(features) -> dict:
 
 def _fit(rows: list, features) -> tuple:
     """``fit_logistic`` of ``rows`` on ``features`` within their sign bounds (``_signs``)."""
-    return fit_logistic(*_matrix(rows, features), **_signs(features))
+    return fit_logistic(*feature_matrix(rows, features), **_signs(features))
 
 
-def _matrix(rows: list, features) -> tuple:
+def feature_matrix(rows: list, features, label: str = "right") -> tuple:
+    """(X [n, F] the rows' ``features``, y [n] their ``label`` as 0/1)."""
     X = np.array([[row[f] for f in features] for row in rows], np.float64)     # [n, F]
-    y = np.array([row["right"] for row in rows], np.float64)                   # [n]
+    y = np.array([row[label] for row in rows], np.float64)                     # [n]
     return X, y
 
 
@@ -300,16 +301,17 @@ def split_rows(rows: list) -> tuple:
     return [r for r in rows if r["shape"] % 2 == 0], [r for r in rows if r["shape"] % 2 == 1]
 
 
-def grouped_log_loss(rows: list, features, folds: int = 5) -> float:
-    """Mean held-out log loss of the logistic model on ``features`` over ``folds`` folds of whole shapes."""
+def grouped_log_loss(rows: list, features, folds: int = 5, label: str = "right", signs: dict | None = None) -> float:
+    """Mean held-out log loss of the logistic model for ``label`` (0/1 per row) on ``features`` over ``folds`` folds
+    of whole shapes; ``signs``: ``fit_logistic``'s sign bounds (default: the confidence's, ``_signs``)."""
     shapes = np.array([r["shape"] for r in rows])
-    X, y = _matrix(rows, features)
+    X, y = feature_matrix(rows, features, label)
     losses = []
     for k in range(folds):
         out = shapes % folds == k
         if not out.any() or out.all() or len(np.unique(y[~out])) < 2:
             continue
-        w, b = fit_logistic(X[~out], y[~out], **_signs(features))
+        w, b = fit_logistic(X[~out], y[~out], **(_signs(features) if signs is None else signs))
         p = np.clip(predict_logistic(X[out], w, b), 1e-6, 1 - 1e-6)
         losses.append(-np.mean(y[out] * np.log(p) + (1 - y[out]) * np.log(1 - p)))
     return float(np.mean(losses)) if losses else float("inf")
@@ -415,7 +417,7 @@ def calibrate(rows: list, features=CONFIDENCE_FEATURES) -> tuple:
     features = choose_features(fit, features)
     tabletop = rows[0]["prompt"] != "points"
     w, b = _fit(fit, features)
-    p = predict_logistic(_matrix(held, features)[0], w, b)
+    p = predict_logistic(feature_matrix(held, features)[0], w, b)
     summary = summarize(held, p)
     for r, q in zip(held, p):
         r["p"] = float(q)

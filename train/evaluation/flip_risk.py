@@ -26,7 +26,7 @@ import numpy as np
 from equipose.core.errors import ConfigError
 from equipose.eval.metrics import FLIP_DEG, auroc, rotation_errors
 from equipose.runtime.stages.flip_risk import FLIP_RISK_FEATURES, flip_features
-from equipose.train.evaluation.confidence import fit_logistic, predict_logistic
+from equipose.train.evaluation.confidence import feature_matrix, fit_logistic, grouped_log_loss, predict_logistic
 from equipose.train.evaluation.fit_cli import fit_parser
 
 __all__ = ["collect", "choose_features", "fit", "summarize", "main"]
@@ -68,32 +68,14 @@ def collect(model, views: int = 4, shapes: int | None = None, seed: int = 1, dat
     return rows
 
 
-def _matrix(rows: list, features) -> tuple:
-    X = np.array([[r[f] for f in features] for r in rows], np.float64)          # [n, F]
-    y = np.array([r["flipped"] for r in rows], np.float64)                      # [n]
-    return X, y
+def _bounds(features) -> dict:
+    """``fit_logistic``'s sign bounds: ``RAISES`` ≥ 0, ``LOWERS`` ≤ 0."""
+    return {"nonnegative": [j for j, f in enumerate(features) if f in RAISES],
+            "nonpositive": [j for j, f in enumerate(features) if f in LOWERS]}
 
 
 def _fit(rows: list, features) -> tuple:
-    X, y = _matrix(rows, features)
-    return fit_logistic(X, y, nonnegative=[j for j, f in enumerate(features) if f in RAISES],
-                        nonpositive=[j for j, f in enumerate(features) if f in LOWERS])
-
-
-def grouped_log_loss(rows: list, features, folds: int = FOLDS) -> float:
-    """Mean held-out log loss of the model on ``features`` over ``folds`` folds of whole shapes."""
-    shapes = np.array([r["shape"] for r in rows])
-    losses = []
-    for k in range(folds):
-        out = shapes % folds == k
-        fit_rows = [r for r, o in zip(rows, out) if not o]
-        if not out.any() or len({r["flipped"] for r in fit_rows}) < 2:
-            continue
-        w, b = _fit(fit_rows, features)
-        X, y = _matrix([r for r, o in zip(rows, out) if o], features)
-        p = np.clip(predict_logistic(X, w, b), 1e-6, 1 - 1e-6)
-        losses.append(-np.mean(y * np.log(p) + (1 - y) * np.log(1 - p)))
-    return float(np.mean(losses)) if losses else float("inf")
+    return fit_logistic(*feature_matrix(rows, features, "flipped"), **_bounds(features))
 
 
 def choose_features(rows: list) -> list:
@@ -107,7 +89,7 @@ def choose_features(rows: list) -> list:
     if not sets:
         raise ConfigError("no flip-risk feature varies over these views (no turn classifier, flip templates or "
                           "selection margin to read)")
-    return min(sets, key=lambda c: grouped_log_loss(rows, c))
+    return min(sets, key=lambda c: grouped_log_loss(rows, c, FOLDS, label="flipped", signs=_bounds(c)))
 
 
 def summarize(flipped: np.ndarray, risk: np.ndarray, threshold: float) -> dict:
@@ -130,7 +112,7 @@ def fit(rows: list, flag_share: float = 0.3) -> tuple:
                           "flipped: render more views (--views, --shapes)")
     features = choose_features(rows)
     w, b = _fit(rows, features)
-    risk = predict_logistic(_matrix(rows, features)[0], w, b)                   # [n]
+    risk = predict_logistic(feature_matrix(rows, features, "flipped")[0], w, b)       # [n]
     threshold = float(np.quantile(risk, 1.0 - flag_share))
     summary = summarize(flipped, risk, threshold)
     stages = summarize(flipped, np.array([r["flagged"] for r in rows]), 0.5)
