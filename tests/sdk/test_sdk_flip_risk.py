@@ -41,6 +41,10 @@ def test_the_risk_sets_ambiguous_in_place_of_the_stages_flags():
     read = _state(turn_margin=0.1, flip_margin=0.02)
     FlipRiskStage(stage.entry, None).run(read)                                 # "read": report only
     assert read.extras["flip_risk"] == unsure.extras["flip_risk"] and read.ambiguous is False
+    assert read.extras["flip_readings"] == flip_features(0.1, 0.02, read.confidence, None, False)
+    bare = _state(turn_margin=0.1, flip_margin=0.02, ambiguous=True)
+    FlipRiskStage(None, None).run(bare)                                         # no model: the readings alone
+    assert "flip_risk" not in bare.extras and bare.extras["flip_readings"]["flagged"] == 1.0 and bare.ambiguous
 
 
 def test_features_clip_and_default_where_a_stage_did_not_run():
@@ -64,6 +68,8 @@ def test_metadata_and_options():
         with pytest.raises(errors.MetadataError, match="flip_risk"):
             parse_flip_risk(json.dumps(bad))
     assert FlipRiskStage.build(MetadataSpec(None), {"threshold": "auto"}, {}) is None      # no fitted model: off
+    assert FlipRiskStage.build(MetadataSpec(None), {"threshold": "read"}, {}).describe() == \
+        {"features": [], "threshold": "read"}                                   # what the fit runs
     with pytest.raises(errors.ConfigError, match="no flip_risk model"):
         FlipRiskStage.build(MetadataSpec(None), {"threshold": 0.2}, {})
     spec = MetadataSpec(json.dumps(ENTRY))

@@ -5,8 +5,9 @@ clearly the stages before it decided, and the threshold at which a result is fla
         [--seed 1] [--flag-share 0.3] [--write] [--json F]
 
 Renders partial views of the category's **training** shapes (seed 1 by default: other views than the training
-cache's; the test set stays for ``equipose eval``), runs each through ``PoseEstimator`` with the stage off, and reads
-its features off the result (``equipose.runtime.stages.flip_risk.flip_features``). A view *flipped* has a rotation
+cache's; the test set stays for ``equipose eval``), runs each through ``PoseEstimator`` with the stage reading only
+(``{"threshold": "read"}``: its features as it sees them, ``flip_readings``, and the stages' own flags left as
+they are). A view *flipped* has a rotation
 error above 150°. The logistic model (sign-bounded: a clearer margin, lead or copy agreement never raises the risk, a
 stage's flag never lowers it) is fitted on one of three feature sets, chosen by shape-grouped cross-validated log
 loss: the turn classifier's lead and the flip margin; those with the selection margin and the stages' flag; all
@@ -25,7 +26,7 @@ import numpy as np
 
 from equipose.core.errors import ConfigError
 from equipose.eval.metrics import FLIP_DEG, auroc, rotation_errors
-from equipose.runtime.stages.flip_risk import FLIP_RISK_FEATURES, flip_features
+from equipose.runtime.stages.flip_risk import FLIP_RISK_FEATURES
 from equipose.train.evaluation.confidence import feature_matrix, fit_logistic, grouped_log_loss, predict_logistic
 from equipose.train.evaluation.fit_cli import fit_parser
 
@@ -41,14 +42,14 @@ FOLDS = 5
 def collect(model, views: int = 4, shapes: int | None = None, seed: int = 1, data_root=None, cache_dir=None,
             progress: bool = True) -> list:
     """Rows {"shape", "view", "rot_err", "flipped", features...} of the model's poses on rendered partial views of
-    the category's training shapes (``shapes``: the first N; None: all), the flip_risk stage off."""
+    the category's training shapes (``shapes``: the first N; None: all), the flip_risk stage reading only."""
     from tqdm import tqdm
 
     from equipose.runtime.estimator import PoseEstimator
     from equipose.train.data.datasets import RenderedPartial
     from equipose.train.data.modelnet import default_data_root
     from equipose.train.data.render_cache import ensure_cache
-    est = PoseEstimator(model, stages={"flip_risk": False})
+    est = PoseEstimator(model, stages={"flip_risk": {"threshold": "read"}})
     if not est.spec.partial:
         raise ConfigError(f"{est.spec.name} is a complete-shape model; the flip risk is fitted on partial views")
     root = data_root or default_data_root()
@@ -61,10 +62,8 @@ def collect(model, views: int = 4, shapes: int | None = None, seed: int = 1, dat
         R = np.stack([r.rotation for r in results])                             # [b, 3, 3]
         err = rotation_errors(R, np.stack([s["rotation"] for s in samples]), est.symmetry)   # [b] degrees
         for j, (s, r, e) in enumerate(zip(samples, results, err)):
-            ev = r.extras["evidence"]
             rows.append({"shape": int(s["instance"]), "view": i + j, "rot_err": float(e),
-                         "flipped": bool(e > FLIP_DEG),
-                         **flip_features(r.turn_margin, ev["flip_margin"], ev["margin"], r.agreement, r.ambiguous)})
+                         "flipped": bool(e > FLIP_DEG), **r.extras["flip_readings"]})
     return rows
 
 

@@ -21,7 +21,8 @@ classifier:
 as well); the confidence stage after it may still flag a result. Result extra ``flip_risk``.
 
 Option ``threshold``: "auto" (the file's; absent: the stage does not run), a probability in (0, 1), or "read"
-(report ``flip_risk``, leave ``ambiguous`` as the stages set it).
+(leave ``ambiguous`` as the stages set it; report ``flip_risk`` where the file has a model, and the features as the
+result extra ``flip_readings``: what the fit reads).
 
 Convention: margins are relative (unitless), logits natural; ``flip_risk`` a probability.
 """
@@ -51,9 +52,7 @@ def flip_margin_reading(state: ObjectState) -> float:
 
 
 def flip_features(turn_margin, flip_margin: float, margin: float, agreement, flagged: bool) -> dict:
-    """The stage's features from its readings (``turn_margin`` / ``agreement`` None where the stage did not run).
-    The fit reads the same values off ``PoseResult``s (``turn_margin``, ``extras["evidence"]``, ``agreement``,
-    ``ambiguous``)."""
+    """The stage's features from its readings (``turn_margin`` / ``agreement`` None where the stage did not run)."""
     turn = TURN_CLIP if turn_margin is None else float(np.clip(turn_margin, -TURN_CLIP, TURN_CLIP))
     return {"turn_margin": turn, "flip_margin": float(flip_margin), "margin": float(margin),
             "agreement": 1.0 if agreement is None else float(agreement), "flagged": float(bool(flagged))}
@@ -92,27 +91,29 @@ class FlipRiskStage(Stage):
     after = "turn"
     options = {"threshold": "auto"}
 
-    def __init__(self, entry: dict, threshold: float | None):
+    def __init__(self, entry: dict | None, threshold: float | None):
         self.entry, self.threshold = entry, threshold                           # threshold None: read only
 
     @classmethod
     def build(cls, spec, options, context):
         entry = parse_flip_risk(spec.get(cls.metadata_key), spec.name)
         th = options["threshold"]
+        if isinstance(th, str) and th == "read":
+            return cls(entry, None)
         if entry is None:
             if th != "auto":
                 raise ConfigError(f"{spec.name} has no flip_risk model to apply a threshold to; fit one "
                                   f"('{FIT_COMMAND}') or leave flip_risk's threshold 'auto'")
             return None
-        if isinstance(th, str) and th in ("auto", "read"):
-            return cls(entry, entry["threshold"] if th == "auto" else None)
+        if isinstance(th, str) and th == "auto":
+            return cls(entry, entry["threshold"])
         if isinstance(th, bool) or not isinstance(th, (int, float)) or not 0.0 < th < 1.0:
             raise ConfigError(f"flip_risk threshold must be 'auto', 'read' or a probability in (0, 1) (flag the "
                               f"result ambiguous where its chance of a half turn reaches it), got {th!r}")
         return cls(entry, float(th))
 
     def describe(self) -> dict:
-        return {"features": list(self.entry["features"]),
+        return {"features": [] if self.entry is None else list(self.entry["features"]),
                 "threshold": self.threshold if self.threshold is not None else "read"}
 
     def run(self, state: ObjectState) -> None:
@@ -120,6 +121,10 @@ class FlipRiskStage(Stage):
             return
         f = flip_features(state.extras.get("turn_margin"), flip_margin_reading(state), state.confidence,
                           state.extras.get("agreement"), state.ambiguous)
+        if self.threshold is None:
+            state.extras["flip_readings"] = f
+        if self.entry is None:
+            return
         risk = flip_risk(f, self.entry)
         state.extras["flip_risk"] = risk
         if self.threshold is not None:
