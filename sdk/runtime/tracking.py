@@ -20,7 +20,7 @@ from scipy.spatial.transform import Rotation
 from equipose.core.errors import ConfigError, EquiposeError
 from equipose.runtime.result import FrameError
 
-__all__ = ["TrackRecord", "track"]
+__all__ = ["TrackRecord", "track", "hold_turn"]
 
 
 @dataclass
@@ -64,10 +64,25 @@ def _regions_for(frame, est, boxes, masks, regions, auto, auto_options):
                       "auto=True (tabletop segmentation); a whole-frame crop would take the background for the object")
 
 
+def hold_turn(result, R_prev: np.ndarray) -> bool:
+    """Keep a track's reading of a view that does not settle it: where ``result`` is ``ambiguous`` and its other
+    reading (``flip_rotation``, the pose's runner-up half turn) lies nearer the track's previous rotation ``R_prev``
+    [3, 3] than the pose does, the result takes that reading (``extras["held_turn"]`` True; ``raw_rotation`` keeps
+    the frame's own). Returns whether it did."""
+    other = result.flip_rotation
+    if other is None or not result.ambiguous:
+        return False
+    if np.trace(R_prev.T @ other) <= np.trace(R_prev.T @ result.rotation):     # larger trace = smaller angle
+        return False
+    result.set_pose(other, result.translation)
+    result.extras["held_turn"] = True
+    return True
+
+
 def track(est, source, *, boxes=None, masks=None, regions=None, auto: bool = False, smoothing: float = 0.5,
           reuse_margin: float = 0.05, reset_angle_deg: float = 45.0, max_jump_m: float = 0.1,
           max_frames: int | None = None, auto_options: dict | None = None, keep_frames: bool = False,
-          up=None):
+          up=None, hold_turns: bool = True):
     """Track object poses over ``source`` with the estimator ``est``. Yields ``TrackRecord`` per frame.
 
     Regions per frame: ``regions`` (a list, or a callable ``frame -> list`` of boxes or ``{"box", "mask"}`` dicts —
@@ -76,6 +91,8 @@ def track(est, source, *, boxes=None, masks=None, regions=None, auto: bool = Fal
     ``reuse_margin``: the hypothesis nearest the object's previous rotation is kept when it scores within this relative
     margin of the best one (prevents flip-flopping between near-equal hypotheses). ``smoothing`` α in [0, 1).
     ``up``: the up prior of ``PoseEstimator.predict`` ("plane" or a camera-frame direction [3]) for every frame.
+    ``hold_turns``: an ``ambiguous`` result whose other reading (``flip_rotation``) lies nearer the track keeps the
+    track's reading (``hold_turn``): a half turn the view does not settle does not flip the track back and forth.
     """
     if not 0.0 <= smoothing < 1.0:
         raise ConfigError(f"smoothing must be in [0, 1), got {smoothing}")
@@ -139,6 +156,8 @@ def track(est, source, *, boxes=None, masks=None, regions=None, auto: bool = Fal
                 continue
             out.object_id = oid
             out.raw_rotation, out.raw_translation = out.rotation.copy(), out.translation.copy()
+            if oid in state and hold_turns:
+                hold_turn(out, state[oid][0])
             if oid in state and smoothing > 0:
                 R_prev, t_prev = state[oid]
                 angle = float(np.degrees(np.linalg.norm(Rotation.from_matrix(R_prev.T @ out.rotation).as_rotvec())))

@@ -57,3 +57,31 @@ def test_auto_tracking_keeps_object_ids(estimator):
     x = [[p.points_centre[0] for p in sorted(r.poses, key=lambda p: p.object_id)] for r in recs]
     assert np.all(np.diff(np.array(x), axis=0) > 0.001)                         # each object follows the pan
     # the random-weight model's translations jump by decimetres between these frames: association must not use them
+
+
+def test_an_ambiguous_half_turn_keeps_the_tracks_reading():
+    """``hold_turn``: an ambiguous result whose runner-up half turn lies nearer the track takes that reading; a
+    settled one, one already nearer the track, or one without a runner-up stays as it is."""
+    from scipy.spatial.transform import Rotation
+
+    from equipose.core.symmetry import HALF_TURNS
+    from equipose.runtime.result import PoseResult
+    from equipose.runtime.tracking import hold_turn
+
+    R_track = Rotation.from_euler("zyx", [30, -10, 5], degrees=True).as_matrix()
+    nudge = Rotation.from_euler("z", 4, degrees=True).as_matrix()
+
+    def result(R, ambiguous=True, axis="z"):
+        shape = np.zeros((4, 3))
+        return PoseResult(rotation=R, translation=np.array([0.0, 0.0, 1.0]), score=0.0, confidence=0.5,
+                          ambiguous=ambiguous, canonical_shape=shape, canonical_shape_object=shape,
+                          hypothesis_index=0, flip_axis=axis)
+
+    turned = result(nudge @ R_track @ HALF_TURNS["z"])                         # the frame read it turned about z
+    assert hold_turn(turned, R_track) and turned.extras["held_turn"]
+    assert np.allclose(turned.rotation, nudge @ R_track) and np.allclose(turned.canonical_shape[:, 2], 1.0)
+    for kept in (result(nudge @ R_track @ HALF_TURNS["z"], ambiguous=False),   # the view settled it
+                 result(nudge @ R_track),                                       # already the track's reading
+                 result(nudge @ R_track @ HALF_TURNS["z"], axis=None)):         # no runner-up reported
+        before = kept.rotation.copy()
+        assert not hold_turn(kept, R_track) and np.array_equal(kept.rotation, before)
