@@ -20,7 +20,7 @@ from scipy.spatial.transform import Rotation
 from equipose.core.errors import ConfigError, EquiposeError
 from equipose.runtime.result import FrameError
 
-__all__ = ["TrackRecord", "track", "hold_turn"]
+__all__ = ["TrackRecord", "track", "hold_turn", "hold_azimuth"]
 
 
 @dataclass
@@ -79,6 +79,21 @@ def hold_turn(result, R_prev: np.ndarray) -> bool:
     return True
 
 
+def hold_azimuth(result, R_prev: np.ndarray) -> bool:
+    """Keep a track's handle direction where a frame does not show the handle: a result whose model has a handle
+    (``handle_visible`` False, not None) is turned about its category z axis (the body's symmetry axis: the axis
+    stays) to the azimuth nearest the track's previous rotation ``R_prev`` [3, 3] (``extras["held_azimuth"]`` True;
+    ``raw_rotation`` keeps the frame's own). Returns whether it did."""
+    if result.handle_visible is not False:
+        return False
+    M = R_prev.T @ result.rotation                                              # [3, 3] trace(M Rz(φ)) is largest at
+    phi = float(np.arctan2(M[0, 1] - M[1, 0], M[0, 0] + M[1, 1]))              # this φ (radians)
+    c, s = np.cos(phi), np.sin(phi)
+    result.set_pose(result.rotation @ np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]), result.translation)
+    result.extras["held_azimuth"] = True
+    return True
+
+
 def track(est, source, *, boxes=None, masks=None, regions=None, auto: bool = False, smoothing: float = 0.5,
           reuse_margin: float = 0.05, reset_angle_deg: float = 45.0, max_jump_m: float = 0.1,
           max_frames: int | None = None, auto_options: dict | None = None, keep_frames: bool = False,
@@ -92,7 +107,8 @@ def track(est, source, *, boxes=None, masks=None, regions=None, auto: bool = Fal
     margin of the best one (prevents flip-flopping between near-equal hypotheses). ``smoothing`` α in [0, 1).
     ``up``: the up prior of ``PoseEstimator.predict`` ("plane" or a camera-frame direction [3]) for every frame.
     ``hold_turns``: an ``ambiguous`` result whose other reading (``flip_rotation``) lies nearer the track keeps the
-    track's reading (``hold_turn``): a half turn the view does not settle does not flip the track back and forth.
+    track's reading (``hold_turn``): a half turn the view does not settle does not flip the track back and forth;
+    and a mug whose handle the frame does not show keeps the track's handle azimuth (``hold_azimuth``).
     """
     if not 0.0 <= smoothing < 1.0:
         raise ConfigError(f"smoothing must be in [0, 1), got {smoothing}")
@@ -157,7 +173,7 @@ def track(est, source, *, boxes=None, masks=None, regions=None, auto: bool = Fal
             out.object_id = oid
             out.raw_rotation, out.raw_translation = out.rotation.copy(), out.translation.copy()
             if oid in state and hold_turns:
-                hold_turn(out, state[oid][0])
+                hold_turn(out, state[oid][0]) or hold_azimuth(out, state[oid][0])
             if oid in state and smoothing > 0:
                 R_prev, t_prev = state[oid]
                 angle = float(np.degrees(np.linalg.norm(Rotation.from_matrix(R_prev.T @ out.rotation).as_rotvec())))

@@ -85,3 +85,38 @@ def test_an_ambiguous_half_turn_keeps_the_tracks_reading():
                  result(nudge @ R_track @ HALF_TURNS["z"], axis=None)):         # no runner-up reported
         before = kept.rotation.copy()
         assert not hold_turn(kept, R_track) and np.array_equal(kept.rotation, before)
+
+
+def test_a_hidden_handle_keeps_the_tracks_azimuth():
+    """``hold_azimuth``: a mug result whose handle was not seen turns about its own z (the axis stays) to the azimuth
+    nearest the track; one whose handle was seen, or a model without a handle, stays."""
+    from scipy.spatial.transform import Rotation
+
+    from equipose.runtime.result import PoseResult
+    from equipose.runtime.tracking import hold_azimuth
+
+    R_track = Rotation.from_euler("zyx", [30, -10, 5], degrees=True).as_matrix()
+    spin = Rotation.from_euler("z", 130, degrees=True).as_matrix()              # about the object's own z
+    tilt = Rotation.from_euler("x", 3, degrees=True).as_matrix()               # the frame's axis 3° off the track
+
+    def result(visible):
+        shape = np.zeros((4, 3))
+        r = PoseResult(rotation=tilt @ R_track @ spin, translation=np.zeros(3), score=0.0, confidence=0.5,
+                       ambiguous=True, canonical_shape=shape, canonical_shape_object=shape, hypothesis_index=0)
+        if visible is not None:
+            r.set_handle([1.0, 0.0, 0.0], visible, 0)
+        return r
+
+    hidden = result(False)
+    axis = hidden.rotation[:, 2].copy()
+    assert hold_azimuth(hidden, R_track) and hidden.extras["held_azimuth"]
+    assert np.allclose(hidden.rotation[:, 2], axis)                            # turned about its own axis only
+    def angle(R):
+        return float(np.degrees(np.arccos(np.clip((np.trace(R_track.T @ R) - 1.0) / 2.0, -1.0, 1.0))))
+    spins = [Rotation.from_euler("z", a, degrees=True).as_matrix() for a in range(0, 360, 2)]
+    assert angle(hidden.rotation) <= min(angle(tilt @ R_track @ spin @ z) for z in spins) + 1e-9   # the nearest
+    assert angle(hidden.rotation) < 3.0 + 1e-9                                  # azimuth: within the tilt
+    assert np.allclose(hidden.handle_direction, hidden.rotation[:, 0])         # the handle follows
+    for kept in (result(True), result(None)):
+        before = kept.rotation.copy()
+        assert not hold_azimuth(kept, R_track) and np.array_equal(kept.rotation, before)
