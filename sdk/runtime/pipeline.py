@@ -24,8 +24,9 @@ from equipose.runtime.stage import ObjectState, registered_stages
 __all__ = ["Pipeline", "MODES"]
 
 MODES = ("category", "instance")
+# stage extras that ``PoseResult`` keeps as named fields
 RESULT_EXTRAS = ("agreement", "frame_priors", "flip_margin", "turn_margin", "flip_risk", "flip_axis",
-                 "handle_visible", "handle_points", "handle_direction_object")          # stage extras that ``PoseResult`` keeps as named fields
+                 "handle_visible", "handle_points", "handle_direction_object")
 
 
 class Pipeline:

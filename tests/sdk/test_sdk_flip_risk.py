@@ -131,4 +131,5 @@ def test_the_overlay_label_shows_the_flip_risk():
     from equipose.runtime.overlay import pose_label
     r = SimpleNamespace(category="car", confidence=0.61, ambiguous=True, object_id=None, flip_risk=0.38)
     assert pose_label(r) == "car conf 0.61 turned? 0.38 AMBIGUOUS (may be turned)"
-    assert pose_label(SimpleNamespace(category="mug", confidence=0.5, ambiguous=False, object_id=3)) == "#3 mug conf 0.50"
+    plain = SimpleNamespace(category="mug", confidence=0.5, ambiguous=False, object_id=3)
+    assert pose_label(plain) == "#3 mug conf 0.50"

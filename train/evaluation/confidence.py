@@ -39,7 +39,8 @@ from equipose.train.evaluation.fit_cli import fit_parser
 
 __all__ = ["RIGHT_DEG", "RIGHT_M", "RIGHT_DIAG", "LYING_EVERY", "UPSIDE_DOWN_EVERY", "PROMPTS", "collect", "view_rest",
            "view_results", "handle_parts", "occluded_views", "collect_modelnet", "fit_logistic", "auroc", "reliability",
-           "summarize", "runner_up_margin", "closed_top_cap", "flag_rows", "grouped_log_loss", "feature_matrix", "main"]
+           "summarize", "runner_up_margin", "closed_top_cap", "flag_rows", "grouped_log_loss", "feature_matrix",
+           "main"]
 
 RIGHT_DEG = 10.0        # a right pose: rotation error ≤ this (modulo symmetry) ...
 RIGHT_M = 0.02          # ... and centre error ≤ this (metres)

@@ -4,15 +4,15 @@ clearly the stages before it decided, and the threshold at which a result is fla
     python -m equipose.train.evaluation.flip_risk --model sdk/models/car-partial.onnx [--views 4] [--shapes N]
         [--seed 1] [--flag-share 0.3] [--write] [--json F]
 
-Renders partial views of the category's **training** shapes (seed 1 by default: other views than the training
-cache's; the test set stays for ``equipose eval``), runs each through ``PoseEstimator`` with the stage reading only
-(``{"threshold": "read"}``: its features as it sees them, ``flip_readings``, and the stages' own flags left as
-they are). A view *flipped* has a rotation
-error above 150°. The logistic model (sign-bounded: a clearer margin, lead or copy agreement never raises the risk, a
-stage's flag never lowers it) is fitted on one of three feature sets, chosen by shape-grouped cross-validated log
-loss: the turn classifier's lead and the flip margin; those with the selection margin and the stages' flag; all
-five. The threshold is the risk that flags ``--flag-share`` of the fitting views. ``--write`` stores
-``flip_risk`` {"features", "weights", "bias", "threshold", "flag_share", "fitted_on", "fit"} in the model file.
+Renders partial views of the category's **training** shapes (seed 1 by default: other views than the training cache's;
+the test set stays for ``equipose eval``), runs each through ``PoseEstimator`` with the stage reading only
+(``{"threshold": "read"}``: its features as it sees them, ``flip_readings``, and the stages' own flags left as they
+are). A view is *flipped* where its rotation error exceeds 150°. The logistic model (sign-bounded: a clearer margin,
+lead or copy agreement never raises the risk, a stage's flag never lowers it) is fitted on one of three feature sets,
+chosen by shape-grouped cross-validated log loss: the turn classifier's lead and the flip margin; those with the
+selection margin and the stages' flag; all five. The threshold is the risk that flags ``--flag-share`` of the fitting
+views. ``--write`` stores ``flip_risk`` {"features", "weights", "bias", "threshold", "flag_share", "fitted_on", "fit"}
+in the model file.
 
 Convention: angles in degrees; risks are probabilities; AUROC for "flipped" (1 = every flip ranked above the rest).
 """
@@ -95,7 +95,10 @@ def summarize(flipped: np.ndarray, risk: np.ndarray, threshold: float) -> dict:
     """Flip rate, AUROC of ``risk`` for a flip, the share flagged at ``threshold`` and the flip rates of the
     flagged and unflagged views. ``flipped`` [n] bool, ``risk`` [n]."""
     flagged = risk >= threshold
-    rate = lambda m: float(flipped[m].mean()) if m.any() else None              # noqa: E731
+
+    def rate(m):
+        return float(flipped[m].mean()) if m.any() else None
+
     return {"n": int(len(risk)), "flip_rate": float(flipped.mean()), "auroc": float(auroc(risk, flipped)),
             "flagged_share": float(flagged.mean()), "unflagged_flip_rate": rate(~flagged),
             "flagged_flip_rate": rate(flagged)}

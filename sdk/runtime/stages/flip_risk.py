@@ -3,9 +3,8 @@ or upside down, rotation error > 150°), and ``ambiguous`` from it.
 
 The stages before it each judge a half turn on their own and flag the result where their own margin is small: the
 selection's scores (``select``, ``view``), the flip templates' fits (``flip``), the turn classifier's logits
-(``turn``). On single partial views of cars and sofas those flags caught too few of the flips for the share they
-flagged (docs/results/models/README.md, v0.44). This stage weighs the same readings together, after the turn
-classifier:
+(``turn``). On single partial views of cars those flags caught too few of the flips for the share they flagged
+(docs/results/models/README.md, v0.44). This stage weighs the same readings together, after the turn classifier:
 
 - ``turn_margin``: the turn classifier's lead of the pose over its best half turn, logits, clipped to
   ±``TURN_CLIP`` (``TURN_CLIP`` without a turn classifier);
@@ -18,7 +17,7 @@ classifier:
 ``flip_risk`` = σ(bias + Σ weight·feature), fitted on rendered views of **training** shapes
 (``python -m equipose.train.evaluation.flip_risk``). The result is ``ambiguous`` where ``flip_risk`` reaches the file's
 ``threshold``, which replaces the flags of the stages before it (each of them stands for a half turn that fits about
-as well); the confidence stage after it may still flag a result. Result extra ``flip_risk``.
+as well); the confidence stage after it may still flag a result. Result field ``flip_risk``.
 
 Option ``threshold``: "auto" (the file's; absent: the stage does not run), a probability in (0, 1), or "read"
 (leave ``ambiguous`` as the stages set it; report ``flip_risk`` where the file has a model, and the features as the
