@@ -18,6 +18,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from equipose.core.errors import ConfigError, EquiposeError
+from equipose.core.symmetry import HALF_TURNS
 from equipose.runtime.result import FrameError
 
 __all__ = ["TrackRecord", "track", "hold_turn", "hold_azimuth"]
@@ -65,17 +66,18 @@ def _regions_for(frame, est, boxes, masks, regions, auto, auto_options):
 
 
 def hold_turn(result, R_prev: np.ndarray) -> bool:
-    """Keep a track's reading of a view that does not settle it: where ``result`` is ``ambiguous`` and its other
-    reading (``flip_rotation``, the pose's runner-up half turn) lies nearer the track's previous rotation ``R_prev``
-    [3, 3] than the pose does, the result takes that reading (``extras["held_turn"]`` True; ``raw_rotation`` keeps
-    the frame's own). Returns whether it did."""
-    other = result.flip_rotation
-    if other is None or not result.ambiguous:
+    """Keep a track's reading of a view that does not settle it: where ``result`` is ``ambiguous`` and reports a
+    runner-up half turn (``flip_axis``: its model has a turn classifier), the pose's half turn about category x, y or z
+    that lies nearest the track's previous rotation ``R_prev`` [3, 3] replaces the pose where it lies nearer than the
+    pose does (``extras["held_turn"]``: that axis; ``raw_rotation`` keeps the frame's own). Returns whether it did."""
+    if result.flip_axis is None or not result.ambiguous:
         return False
-    if np.trace(R_prev.T @ other) <= np.trace(R_prev.T @ result.rotation):     # larger trace = smaller angle
+    closeness = {a: float(np.trace(R_prev.T @ result.rotation @ HALF_TURNS[a])) for a in HALF_TURNS}   # larger =
+    axis = max(closeness, key=closeness.get)                                                           # nearer
+    if closeness[axis] <= float(np.trace(R_prev.T @ result.rotation)):
         return False
-    result.set_pose(other, result.translation)
-    result.extras["held_turn"] = True
+    result.set_pose(result.rotation @ HALF_TURNS[axis], result.translation)
+    result.extras["held_turn"] = axis
     return True
 
 
@@ -106,9 +108,10 @@ def track(est, source, *, boxes=None, masks=None, regions=None, auto: bool = Fal
     ``reuse_margin``: the hypothesis nearest the object's previous rotation is kept when it scores within this relative
     margin of the best one (prevents flip-flopping between near-equal hypotheses). ``smoothing`` α in [0, 1).
     ``up``: the up prior of ``PoseEstimator.predict`` ("plane" or a camera-frame direction [3]) for every frame.
-    ``hold_turns``: an ``ambiguous`` result whose other reading (``flip_rotation``) lies nearer the track keeps the
-    track's reading (``hold_turn``): a half turn the view does not settle does not flip the track back and forth;
-    and a mug whose handle the frame does not show keeps the track's handle azimuth (``hold_azimuth``).
+    ``hold_turns``: an ``ambiguous`` result of a model with a turn classifier takes the half turn of its pose that
+    lies nearest the track where that is nearer than the pose (``hold_turn``): a half turn the view does not settle
+    does not flip the track back and forth; and a mug whose handle the frame does not show keeps the track's handle
+    azimuth (``hold_azimuth``).
     """
     if not 0.0 <= smoothing < 1.0:
         raise ConfigError(f"smoothing must be in [0, 1), got {smoothing}")
@@ -173,7 +176,7 @@ def track(est, source, *, boxes=None, masks=None, regions=None, auto: bool = Fal
             out.object_id = oid
             out.raw_rotation, out.raw_translation = out.rotation.copy(), out.translation.copy()
             if oid in state and hold_turns:
-                hold_turn(out, state[oid][0]) or hold_azimuth(out, state[oid][0])
+                hold_azimuth(out, state[oid][0]) or hold_turn(out, state[oid][0])
             if oid in state and smoothing > 0:
                 R_prev, t_prev = state[oid]
                 angle = float(np.degrees(np.linalg.norm(Rotation.from_matrix(R_prev.T @ out.rotation).as_rotvec())))
