@@ -84,6 +84,9 @@ def add_arguments(p):
                    help="up prior for objects standing in their rest pose: 'plane' (the frame's table/floor) or a "
                         "camera-frame up direction, e.g. from an IMU (see PoseEstimator.predict)")
     p.add_argument("--smoothing", type=float, default=0.0, help="temporal smoothing α in [0, 1) (default 0: raw)")
+    p.add_argument("--hold-turns", dest="hold_turns", action="store_true",
+                   help="a frame whose result is ambiguous keeps the track's half turn (and a mug with its handle out "
+                        "of view the track's azimuth): PoseEstimator.track(hold_turns=True); default: each frame its own")
 
 
 def run(args) -> int:
@@ -113,7 +116,8 @@ def run(args) -> int:
                 out.mkdir(parents=True, exist_ok=True)
                 jsonl = open(out / ".results.jsonl.partial", "w")
             for rec in est.track(src, boxes=boxes, masks=masks, auto=args.auto, smoothing=args.smoothing,
-                                 max_frames=args.max_frames, keep_frames=out is not None, up=up):
+                                 max_frames=args.max_frames, keep_frames=out is not None, up=up,
+                                 hold_turns=args.hold_turns):
                 n_poses += len(rec.poses)
                 d = rec.to_dict()
                 if jsonl:

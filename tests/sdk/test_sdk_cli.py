@@ -69,3 +69,18 @@ def test_overlay_labels_do_not_overlap():
         assert 0 <= a[0] and a[2] <= 640 and 0 <= a[1] and a[3] <= 480
         for b in taken[i + 1:]:
             assert not (a[0] < b[2] and b[0] < a[2] and a[1] < b[3] and b[1] < a[3])
+
+
+def test_predict_hold_turns_is_the_track_option(monkeypatch, capsys, tiny_model):
+    from equipose.runtime import estimator
+    seen = []
+    real = estimator.PoseEstimator.track
+
+    def spy(self, source, **kw):
+        seen.append(kw["hold_turns"])
+        return real(self, source, **kw)
+    monkeypatch.setattr(estimator.PoseEstimator, "track", spy)
+    for extra in ([], ["--hold-turns"]):
+        assert main(["predict", "-m", str(tiny_model), "-s", str(sample_path()), "--box", "328,233,169,146",
+                     "--threads", "1", *extra]) == 0
+    assert seen == [False, True]
