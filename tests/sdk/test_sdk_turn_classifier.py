@@ -131,6 +131,10 @@ def test_model_with_a_turn_classifier(tiny_model, tmp_path, rng):
     assert "turn_margin" in res.to_dict() and res.flip_axis in ("x", "y", "z")
     assert rotation_angle_deg(res.flip_rotation, res.rotation) == pytest.approx(180.0, abs=1e-4)
     assert res.to_dict()["flip_rotation"] == np.round(res.flip_rotation, 6).tolist()
+    from equipose.train.evaluation.evaluate import predict_onnx                  # what eval's "[either reading]" reads
+    *_, flips = predict_onnx(est, [{"points_m": pts}, {"points_m": pts[::-1]}])
+    assert flips.shape == (2, 3, 3) and np.allclose(flips[0], res.flip_rotation)
+    assert predict_onnx(PoseEstimator(tiny_model, threads=1), [{"points_m": pts}])[-1] is None   # no classifier
     plain = PoseEstimator(tiny_model, threads=1).predict_points(pts)
     turned = rotation_angle_deg(res.rotation, plain.rotation)
     assert turned < 1e-4 or turned > 179.0                                        # itself or a half turn of it

@@ -8,7 +8,9 @@ Convention:
     (``equipose.preprocess.prepare_points``: centroid-centred, scaled, FPS-ordered), then argmin-of-60 selection and
     the stored calibration.
     ICP-60 runs on the same points against 3 random training shapes (category frame, seeded); its row is the mean of
-    the per-template rows, as the paper.
+    the per-template rows, as the paper. Through the SDK, rows in brackets follow ours: the views whose handle was
+    seen / hidden, the unflagged / flagged ones, and, for models with a turn classifier, "[either reading]": each
+    view's pose or its ``flip_rotation``, whichever is nearer the truth (what a user who can try both gets).
     JSON: ``{"category", "mode", "n", "rows": [{method, rot_mean_deg, rot_median_deg, trans_mean, trans_median,
     acc_5deg, acc_5deg_005, flip_rate}]}`` (+ ``"details"`` under a separate key only when asked).
 """
@@ -75,10 +77,11 @@ def predict_onnx(model, samples: list, batch_size: int = 16, refine="auto", up: 
     is used as it is; ``refine``: its ICP re-scoring of the k best hypotheses). Returns (R, t metres, estimator,
     handle seen [S] bool or None for models without one, the results' symmetry — "none" once a handle stage made the
     pose full 6D). ``up="gt"``: the up prior with each sample's true up axis (what a level IMU or the table plane
-    gives a user; ``equipose.runtime.upright``). Last: [S] bool, the results' ``ambiguous`` flags."""
+    gives a user; ``equipose.runtime.upright``). Then: [S] bool, the results' ``ambiguous`` flags; last: [S, 3, 3]
+    their ``flip_rotation`` (the other reading: models with a turn classifier), or None."""
     from equipose.runtime.estimator import PoseEstimator
     est = model if isinstance(model, PoseEstimator) else PoseEstimator(model, refine=refine)
-    Rs, ts, seen, flagged, sym = [], [], [], [], est.symmetry
+    Rs, ts, seen, flagged, flips, sym = [], [], [], [], [], est.symmetry
     for i in range(0, len(samples), batch_size):
         chunk = samples[i:i + batch_size]
         ups = None if up is None else [s["rotation"][:, 2] for s in chunk]
@@ -87,9 +90,10 @@ def predict_onnx(model, samples: list, batch_size: int = 16, refine="auto", up: 
             ts.append(r.translation)
             seen.append(r.handle_visible)
             flagged.append(r.ambiguous)
+            flips.append(r.flip_rotation)
             sym = r.symmetry
     return (np.stack(Rs), np.stack(ts), est, None if est.handle is None else np.array(seen, bool), sym,
-            np.array(flagged, bool))
+            np.array(flagged, bool), None if any(f is None for f in flips) or not flips else np.stack(flips))
 
 
 def run_icp(samples: list, templates: list, bidirectional: bool, obs_points: int = 256, iters: int = 20,
@@ -191,7 +195,7 @@ def evaluate(*, category: str, mode: str, checkpoint=None, model_path=None, data
     if checkpoint is not None:
         R, t = predict_checkpoint(model, ckpt, samples)
     else:
-        R, t, est, seen, symmetry, flagged = predict_onnx(est, samples, up=up)  # symmetry: the results'
+        R, t, est, seen, symmetry, flagged, flips = predict_onnx(est, samples, up=up)  # symmetry: the results'
         refine = est.refine
     ours_s = time.perf_counter() - t0
     name = "equipose" + ("+up(gt)" if up else f"+icp{refine}" if refine else "")
@@ -209,6 +213,11 @@ def evaluate(*, category: str, mode: str, checkpoint=None, model_path=None, data
             sub = [sm for sm, k in zip(samples, m) if k]
             rows.append({**_row(f"{row['method']} [{label}]", R[m], t[m], sub, symmetry, unsigned)[0],
                          "fraction": float(m.mean())})
+    if checkpoint is None and flips is not None:                   # the pose or its other reading, whichever is right
+        f_err = _row("", flips, t, samples, symmetry, unsigned)[1]
+        either = np.where((f_err < r_err)[:, None, None], flips, R)            # [S, 3, 3]
+        rows.append({**_row(f"{row['method']} [either reading]", either, t, samples, symmetry, unsigned)[0],
+                     "fraction": 1.0})
 
     pick, trows, icp_set, icp_s = [], [], [], 0.0
     if icp_templates > 0:                                          # 0: ours only
