@@ -77,35 +77,41 @@ def parse_share_cap(text, name: str, source: str, hint: str, key: str = "cap") -
 
 
 class ShareCapStage(Stage):
-    """A stage that acts where a reading passes the share threshold ``cap`` of its metadata entry
-    (``{"cap": share, ...}`` under ``metadata_key``, written by ``fit_command``) and otherwise only reports the reading.
-    Option ``cap``: "auto" (the file's; absent: the stage does not run), a share in (0, 1], or "read" (``cap`` None:
-    report, never act)."""
+    """A stage whose metadata entry (``{share_key: share, ...}`` under ``metadata_key``, written by ``fit_command``)
+    holds one fitted share, stored as the attribute named ``share_key`` ("cap": a threshold the stage acts beyond,
+    otherwise it only reports the reading). Option ``share_key``: "auto" (the file's; absent: the stage does not run),
+    a share in (0, 1], or "read" (the share None: report, never act)."""
     options = {"cap": "auto"}
+    share_key: str = "cap"                  # the entry's key, the option's name and the attribute holding the share
+    share_meaning: str = ""                 # what the share is, for the option's error
     fit_command: str = ""                   # what writes the metadata entry (named in its errors)
 
-    def __init__(self, cap: float | None):
-        self.cap = cap                                                          # None: read only
+    def __init__(self, share: float | None):
+        setattr(self, self.share_key, share)                                    # None: read only
 
     @classmethod
     def parse(cls, text, source: str = "model") -> dict | None:
-        """The stage's metadata entry → the dict with ``cap`` a float in (0, 1], or None (``parse_share_cap``)."""
-        return parse_share_cap(text, cls.metadata_key, source, cls.fit_command)
+        """The stage's metadata entry → the dict with ``share_key`` a float in (0, 1], or None
+        (``parse_share_cap``)."""
+        return parse_share_cap(text, cls.metadata_key, source, cls.fit_command, key=cls.share_key)
 
     @classmethod
     def build(cls, spec, options, context):
-        cap = options["cap"]
-        if isinstance(cap, str) and cap == "auto":
+        share = options[cls.share_key]
+        if isinstance(share, str) and share == "auto":
             d = cls.parse(spec.get(cls.metadata_key), spec.name)
-            return None if d is None else cls(d["cap"])
-        if isinstance(cap, str) and cap == "read":
+            return None if d is None else cls(d[cls.share_key])
+        if isinstance(share, str) and share == "read":
             return cls(None)
-        if not is_share(cap):
-            raise ConfigError(f"{cls.name} cap must be 'auto', 'read' or a share in (0, 1], got {cap!r}")
-        return cls(float(cap))
+        if not is_share(share):
+            meaning = f" ({cls.share_meaning})" if cls.share_meaning else ""
+            raise ConfigError(f"{cls.name} {cls.share_key} must be 'auto', 'read' or a share in (0, 1]{meaning}, got "
+                              f"{share!r}")
+        return cls(float(share))
 
     def describe(self) -> dict:
-        return {"cap": self.cap if self.cap is not None else "read"}
+        share = getattr(self, self.share_key)
+        return {self.share_key: share if share is not None else "read"}
 
 
 def register_stage(cls):

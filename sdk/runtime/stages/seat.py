@@ -22,8 +22,7 @@ from __future__ import annotations
 
 import math
 
-from equipose.core.errors import ConfigError
-from equipose.runtime.stage import ObjectState, Stage, is_share, parse_share_cap, register_stage
+from equipose.runtime.stage import ObjectState, ShareCapStage, register_stage
 
 __all__ = ["SeatStage", "SEAT_DEG", "parse_seat"]
 
@@ -31,38 +30,19 @@ SEAT_DEG = 5.0                  # the pose's axis within this of the support pla
 FIT_COMMAND = "python -m equipose.train.evaluation.seat --model ... --write"
 
 
-def parse_seat(text, source: str = "model") -> dict | None:
-    """``seat`` metadata (JSON string or dict) → the dict with ``height`` a float in (0, 1], or None. Raises
-    ``MetadataError`` when malformed (``parse_share_cap``)."""
-    return parse_share_cap(text, "seat", source, FIT_COMMAND, key="height")
-
-
 @register_stage
-class SeatStage(Stage):
+class SeatStage(ShareCapStage):
     name = "seat"
     metadata_key = "seat"
     after = "handle"
     options = {"height": "auto"}
+    share_key = "height"
+    share_meaning = "the centre's height above the support plane per height of the object's top"
+    fit_command = FIT_COMMAND
 
     def __init__(self, height: float | None):
-        self.height = height                                                    # None: read only
+        super().__init__(height)                                                # self.height; None: read only
         self.cos_min = math.cos(math.radians(SEAT_DEG))
-
-    @classmethod
-    def build(cls, spec, options, context):
-        height = options["height"]
-        if isinstance(height, str) and height == "auto":
-            d = parse_seat(spec.get(cls.metadata_key), spec.name)
-            return None if d is None else cls(d["height"])
-        if isinstance(height, str) and height == "read":
-            return cls(None)
-        if not is_share(height):
-            raise ConfigError(f"seat height must be 'auto', 'read' or a share in (0, 1] (the centre's height above "
-                              f"the support plane per height of the object's top), got {height!r}")
-        return cls(float(height))
-
-    def describe(self) -> dict:
-        return {"height": self.height if self.height is not None else "read"}
 
     def run(self, state: ObjectState) -> None:
         if state.support_up is None or state.rotation is None:
@@ -78,3 +58,9 @@ class SeatStage(Stage):
         moved = float((t - state.translation) @ up) * state.prep.scale          # m along the normal
         state.set_pose(state.rotation, t)
         state.extras["seat_reading"] = {"top_height": top, "moved": moved}
+
+
+def parse_seat(text, source: str = "model") -> dict | None:
+    """``seat`` metadata (JSON string or dict) → the dict with ``height`` a float in (0, 1], or None. Raises
+    ``MetadataError`` when malformed (``parse_share_cap``)."""
+    return SeatStage.parse(text, source)
