@@ -30,9 +30,10 @@ import numpy as np
 from scipy.optimize import minimize
 
 from equipose.core.errors import ConfigError, EquiposeError
+from equipose.core.logistic import logistic
 from equipose.core.metadata import CONFIDENCE_FEATURES
 from equipose.eval.metrics import auroc
-from equipose.runtime.stages.confidence import (TURNED, below_runner_up, closed_top, logistic, open_bottom_up,
+from equipose.runtime.stages.confidence import (TURNED, below_runner_up, closed_top, open_bottom_up,
                                                 turned_closed_top)
 from equipose.runtime.stages.rest_side import HALF_TURN_X
 from equipose.train.evaluation.fit_cli import fit_parser

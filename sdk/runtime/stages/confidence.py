@@ -62,22 +62,18 @@ import math
 
 import numpy as np
 
+from equipose.core.logistic import entry_probability
 from equipose.core.nearest import nearest_distances
 from equipose.runtime.stages.cylinder import AXIS_RATIO_CLIP
 from equipose.runtime.stages.flip_risk import flip_margin_reading
 from equipose.runtime.stage import ObjectState, Stage, register_stage
 
-__all__ = ["ConfidenceStage", "FAR", "TURNED", "evidence", "logistic", "below_runner_up", "closed_top",
+__all__ = ["ConfidenceStage", "FAR", "TURNED", "evidence", "below_runner_up", "closed_top",
            "turned_closed_top", "open_bottom_up"]
 
 FAR = 0.25          # RMS radii: a point farther than this from the other set is unexplained / unseen
 CONTACT_CLIP = 2.0  # RMS radii: plane_float / plane_sink saturate here
 TURNED = 0.5        # own_axis_turn above this: the network had the axis more than 90° away
-
-
-def logistic(z):
-    """σ(z) = 1 / (1 + e^−z), z clipped to ±60 (scalar or array)."""
-    return 1.0 / (1.0 + np.exp(-np.clip(z, -60.0, 60.0)))
 
 
 def below_runner_up(margin: float, calibration: dict | None) -> bool:
@@ -212,5 +208,4 @@ class ConfidenceStage(Stage):
         state.extras["evidence"] = {k: round(v, 6) for k, v in ev.items()}
         if c is None:
             return
-        z = c["bias"] + float(np.dot(c["weights"], [ev[f] for f in c["features"]]))
-        state.confidence = float(logistic(z))
+        state.confidence = entry_probability(c, ev)

@@ -33,6 +33,7 @@ import math
 import numpy as np
 
 from equipose.core.errors import ConfigError, MetadataError
+from equipose.core.logistic import entry_probability
 from equipose.runtime.stage import ObjectState, Stage, register_stage
 
 __all__ = ["FlipRiskStage", "FLIP_RISK_FEATURES", "TURN_CLIP", "parse_flip_risk", "flip_margin_reading",
@@ -58,9 +59,9 @@ def flip_features(turn_margin, flip_margin: float, margin: float, agreement, fla
 
 
 def flip_risk(features: dict, entry: dict) -> float:
-    """σ(bias + Σ weight·feature) of a ``flip_risk`` metadata entry (``parse_flip_risk``) on ``features``."""
-    z = entry["bias"] + float(np.dot(entry["weights"], [features[f] for f in entry["features"]]))
-    return float(1.0 / (1.0 + math.exp(-float(np.clip(z, -60.0, 60.0)))))
+    """σ(bias + Σ weight·feature) of a ``flip_risk`` metadata entry (``parse_flip_risk``) on ``features``
+    (``equipose.core.logistic.entry_probability``)."""
+    return entry_probability(entry, features)
 
 
 def parse_flip_risk(text, source: str = "model") -> dict | None:
