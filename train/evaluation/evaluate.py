@@ -214,7 +214,7 @@ def evaluate(*, category: str, mode: str, checkpoint=None, model_path=None, data
             rows.append({**_row(f"{row['method']} [{label}]", R[m], t[m], sub, symmetry, unsigned)[0],
                          "fraction": float(m.mean())})
     if checkpoint is None and flips is not None:                   # the pose or its other reading, whichever is right
-        f_err = _row("", flips, t, samples, symmetry, unsigned)[1]
+        f_err = rotation_errors(flips, np.stack([s["rotation"] for s in samples]), symmetry, unsigned)   # [S]
         either = np.where((f_err < r_err)[:, None, None], flips, R)            # [S, 3, 3]
         rows.append({**_row(f"{row['method']} [either reading]", either, t, samples, symmetry, unsigned)[0],
                      "fraction": 1.0})
