@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import math
 import os
 import pathlib
 import time
@@ -123,6 +122,7 @@ def train(cfg: TrainConfig, resume: bool = False, log=print) -> pathlib.Path:
             prm.requires_grad_(False)
     opt = torch.optim.Adam([prm for prm in model.parameters() if prm.requires_grad], lr=cfg.lr)
     step, history, seconds = 0, [], []
+    samples = None                                   # training samples seen over all slices (sets the lr epoch)
     calibration = None
     if resume and ckpt_path.is_file():
         ck = load_checkpoint(ckpt_path)
@@ -130,6 +130,7 @@ def train(cfg: TrainConfig, resume: bool = False, log=print) -> pathlib.Path:
         if ck.get("optimizer"):
             opt.load_state_dict(ck["optimizer"])
         step = int(ck["step"])
+        samples = ck.get("training", {}).get("samples_seen")
         history = ck.get("training", {}).get("history", [])
         seconds = ck.get("training", {}).get("step_seconds", [])
         calibration = ck.get("calibration")
@@ -170,11 +171,13 @@ def train(cfg: TrainConfig, resume: bool = False, log=print) -> pathlib.Path:
         targets = {k: torch.from_numpy(np.asarray(v, np.int64 if k == "instance" else np.float32)).to(device)
                    for k, v in tt.items()}
     rng = np.random.default_rng([cfg.seed, rank, step])
-    per_epoch = max(1, math.ceil(len(train_ds) / (cfg.batch_size * world)))
+    if samples is None:                              # a checkpoint from before the count: its steps at this batch
+        samples = step * cfg.batch_size * world
 
     def summary():
         return {"category": cfg.category, "mode": cfg.mode, "preset": cfg.preset, "batch_size": cfg.batch_size,
                 "world_size": world, "train_samples": len(train_ds), "lr": cfg.lr, "device": str(device),
+                "samples_seen": int(samples),
                 "threads": cfg.threads, "history": history, "step_seconds": seconds[-1000:],
                 "seconds_per_step_median": float(np.median(seconds[3:] or seconds)) if seconds else None,
                 "data_root": cfg.data_root or str(default_data_root()), "config": dataclasses.asdict(cfg)}
@@ -190,7 +193,7 @@ def train(cfg: TrainConfig, resume: bool = False, log=print) -> pathlib.Path:
         net.train()
         for name in frozen:                          # frozen = fixed weights *and* fixed BatchNorm statistics
             getattr(model, name).eval()
-        lr = cfg.lr * cfg.lr_gamma ** (step // per_epoch)
+        lr = cfg.lr * cfg.lr_gamma ** (samples // len(train_ds))   # decays per epoch of samples, whatever the batch
         for g in opt.param_groups:
             g["lr"] = lr
         t0 = time.perf_counter()
@@ -217,6 +220,7 @@ def train(cfg: TrainConfig, resume: bool = False, log=print) -> pathlib.Path:
         loss.backward()
         opt.step()
         step += 1
+        samples += cfg.batch_size * world
         seconds.append(time.perf_counter() - t0)
         spent += seconds[-1]
         bar.update(1)
