@@ -96,7 +96,7 @@ def _add_pair(S, ss, ds, Y, m, x, n):
 
 
 @njit(cache=True, nogil=True)
-def _icp_loop(x, Y, which, R, t, iters, bidirectional, hold_axis, up, res):
+def _icp_loop(x, Y, which, R, t, iters, bidirectional, hold_axis, up, tol, res):
     """The ICP of every start, in place on R [J, 3, 3], t [J, 3], res [J] (see ``icp_multi``)."""
     N, M = x.shape[0], Y.shape[1]
     K = N + (M if bidirectional else 0)
@@ -106,11 +106,12 @@ def _icp_loop(x, Y, which, R, t, iters, bidirectional, hold_axis, up, res):
     xs = x.reshape(1, N, 3) if bidirectional else np.ascontiguousarray(x[:1]).reshape(1, 1, 3)   # one-point stand-in
     _, xsoa, xcentre, xtpoints, xids, xnodes, xsplit = build_index(xs)          # when only observed → template
     tree, xtree = tpoints.shape[1] > 0, xtpoints.shape[1] > 0
-    H, q = np.empty((3, 3)), np.empty(3)
+    H, q, Rold = np.empty((3, 3)), np.empty(3), np.empty((3, 3))
     for j in range(R.shape[0]):
         w = which[j]
         Yw = Y[w]
         pairs[:] = -1
+        settled = False
         if hold_axis >= 0:
             _hold_axis(R[j], hold_axis, up)
         for it in range(iters + 1):
@@ -149,7 +150,7 @@ def _icp_loop(x, Y, which, R, t, iters, bidirectional, hold_axis, up, res):
                     _add_pair(S, ss, ds, Yw, m, x, n)
                 r += r2 / M
             res[j] = r
-            if it == iters:
+            if it == iters or settled:
                 break
             same = True                                                         # same pairs as the step that led
             for k in range(K):                                                  # here: its fit is this pose again
@@ -161,15 +162,25 @@ def _icp_loop(x, Y, which, R, t, iters, bidirectional, hold_axis, up, res):
             for a in range(3):
                 for b in range(3):
                     H[a, b] = S[a, b] - ss[a] * ds[b] / K                       # Σ (s − s̄)(d − d̄)ᵀ
+            Rold[:, :] = Rj
+            t0, t1, t2 = tj[0], tj[1], tj[2]
             _fit_rotation(H, Rj)
             if hold_axis >= 0:
                 _hold_axis(Rj, hold_axis, up)
             for a in range(3):                                                  # best translation for that R
                 tj[a] = (ds[a] - Rj[a, 0] * ss[0] - Rj[a, 1] * ss[1] - Rj[a, 2] * ss[2]) / K
+            if tol > 0.0:                                                       # a step below tol: one more pass
+                c = 0.0                                                         # for the residual, then stop
+                for a in range(3):
+                    for b in range(3):
+                        c += Rold[a, b] * Rj[a, b]                              # tr(Rold^T R) = 1 + 2 cos(angle)
+                dt2 = (tj[0] - t0) ** 2 + (tj[1] - t1) ** 2 + (tj[2] - t2) ** 2
+                settled = c > 3.0 - tol * tol and dt2 < tol * tol
 
 
 def icp_multi(observed: np.ndarray, template: np.ndarray, R0: np.ndarray, t0: np.ndarray, iters: int = 30,
-              bidirectional: bool = False, which=None, hold=None, workers: int | None = None) -> tuple:
+              bidirectional: bool = False, which=None, hold=None, workers: int | None = None,
+              tol: float = 0.0) -> tuple:
     """ICP from several starts at once.
 
     Convention: ``observed`` [N ≥ 3, 3]; ``template`` [M ≥ 3, 3], or [T, M, 3] with ``which`` [J] the template of
@@ -180,7 +191,9 @@ def icp_multi(observed: np.ndarray, template: np.ndarray, R0: np.ndarray, t0: np
     and every update are turned onto it by the smallest rotation, and the translation is re-fitted for the held
     rotation (e.g. the up prior's "keep +z on up"). A start whose nearest-neighbour pairs repeat those of the step
     that moved it is at a fixed point (the fit of the same pairs is the same pose) and stops early with exactly the
-    result the remaining iterations would give.
+    result the remaining iterations would give. ``tol`` > 0 also stops a start after the first update that turns it
+    by less than ``tol`` radians and moves it by less than ``tol`` template units (its residual is then that of the
+    updated pose); the default 0 runs every iteration short of a fixed point.
 
     Each update is the least-squares rigid fit of all pairs (observed → template, and template → observed when
     bidirectional), accumulated without storing them: H = Σ s dᵀ − K s̄ d̄ᵀ over the K pairs of a start.
@@ -206,7 +219,8 @@ def icp_multi(observed: np.ndarray, template: np.ndarray, R0: np.ndarray, t0: np
         up = np.ascontiguousarray(up / np.linalg.norm(up))
     res = np.zeros(J)
     parts = split_ranges(J, workers_in_scope() if workers is None else workers) if J else []
-    run_parts(_icp_loop, [(x, Y, which[a:b], R[a:b], t[a:b], int(iters), bool(bidirectional), axis, up, res[a:b])
+    run_parts(_icp_loop, [(x, Y, which[a:b], R[a:b], t[a:b], int(iters), bool(bidirectional), axis, up,
+                           float(tol), res[a:b])
                           for a, b in parts])                                   # in place on views of R, t, res
     return R, t, res
 

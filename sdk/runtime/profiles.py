@@ -41,7 +41,8 @@ PROFILES: dict = {
                 "sofa-partial": {"polish": {"points": 1024}, "rescore": {"points": 128, "densify": 4},
                                  "copies": {"count": 4}, "turn": {"points": 128}},   # v0.38: 4 copies, denser template
                 "chair-partial": {"view": {"k": 2}, "rescore": {"points": 128, "iters": 20},
-                                  "polish": {"iters": 20}}},     # v0.33's view k; v0.37's re-scoring and polish
+                                  "polish": {"iters": 20, "tol": 1e-3}}},   # v0.33's view k; v0.37's re-scoring
+                                                                             # and polish; v0.45's polish tol
     "fast": {"*": FAST},
 }
 

@@ -89,6 +89,32 @@ def test_icp_multi_early_exit_matches_every_iteration(bidirectional):
     assert rotation_angle_deg(R[0], R_true) < 1.0                       # the near start converges to the truth
 
 
+@pytest.mark.parametrize("bidirectional", [False, True])
+def test_icp_multi_tol_stops_after_the_first_small_update(bidirectional):
+    """With tol, a start stops after the first update that turns it by < tol rad and moves it by < tol: the result
+    is the plain ICP's after that many updates, with that pose's residual."""
+    from equipose.runtime.refine import icp_multi
+    rng = np.random.default_rng(5)
+    Y = _tripod(rng, 300)
+    R_true = random_rotations(1, seed=4)[0]
+    x = Y[rng.permutation(300)[:200]] @ R_true.T + [0.0, 0.0, 1.0] + rng.normal(0, 0.003, (200, 3))
+    R0 = Rotation.from_rotvec(rng.normal(0, 0.3, 3)).as_matrix() @ R_true
+    t0 = np.array([0.0, 0.0, 1.0]) + rng.normal(0, 0.02, 3)
+    tol = 2e-3
+    poses = [(R0, t0)]
+    for k in range(1, 40):
+        poses.append(_reference_icp(x, Y, R0, t0, k, bidirectional)[:2])
+    steps = [(rotation_angle_deg(poses[k][0], poses[k - 1][0]), np.linalg.norm(poses[k][1] - poses[k - 1][1]))
+             for k in range(1, 40)]
+    first = next(k + 1 for k, (a, d) in enumerate(steps) if np.radians(a) < tol and d < tol)
+    assert 1 < first < 39                                                    # the test exercises an early stop
+    R, t, res = icp_multi(x, Y, R0[None], t0[None], iters=40, bidirectional=bidirectional, tol=tol)
+    Rr, tr, rr = _reference_icp(x, Y, R0, t0, first, bidirectional)
+    np.testing.assert_allclose(R[0], Rr, atol=1e-9)
+    np.testing.assert_allclose(t[0], tr, atol=1e-9)
+    assert res[0] == pytest.approx(rr, rel=1e-9)
+
+
 def _box_surface(rng, n, size=(0.4, 0.25, 0.15)):
     """[n, 3] points on the faces of a box centred at the origin, and their face normals [n, 3]."""
     face = rng.integers(0, 6, n)

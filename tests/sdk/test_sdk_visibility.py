@@ -116,6 +116,13 @@ def test_estimator_polish_option(tiny_model):
             PoseEstimator(tiny_model, threads=1, refine=3, polish=bad)
     with pytest.raises(ConfigError, match="refine"):
         PoseEstimator(tiny_model, threads=1, refine=0, polish=5)
+    loose = PoseEstimator(tiny_model, threads=1, refine=3, polish=20, stages={"polish": {"tol": 0.05}})
+    assert loose.pipeline.get("polish").describe()["tol"] == 0.05
+    r2 = loose.predict_points(pts)                                           # stops early: no better than 20 updates
+    assert residual(r1) <= residual(r2) + 1e-12 and residual(r2) <= residual(r0) + 1e-12
+    for bad in (-0.1, 0.5, True, "small"):
+        with pytest.raises(ConfigError, match="polish tol"):
+            PoseEstimator(tiny_model, threads=1, refine=3, polish=20, stages={"polish": {"tol": bad}})
 
 
 def test_visibility_is_refused_for_complete_shape_models(tmp_path):

@@ -1,7 +1,9 @@
 """Stage ``polish``: more ICP iterations on the selected pose after re-scoring, on every point of the crop.
 
 Options: ``iters`` ("auto": the file's ``refine_calibration`` polish when its re-scoring runs; 0 = off), ``points``
-("cloud": every point of the crop; "input": the model input's N points; n: the crop thinned to at most n points).
+("cloud": every point of the crop; "input": the model input's N points; n: the crop thinned to at most n points),
+``tol`` (0: run ``iters`` updates unless the pairs repeat; t > 0: also stop after the first update that turns the pose
+by less than t radians and moves it by less than t model units).
 
 Convention: ICP in the learned frame against the re-scoring's template, then calibrated (model units).
 """
@@ -21,10 +23,10 @@ __all__ = ["PolishStage"]
 class PolishStage(Stage):
     name = "polish"
     after = "select"
-    options = {"iters": "auto", "points": "cloud"}
+    options = {"iters": "auto", "points": "cloud", "tol": 0.0}
 
-    def __init__(self, iters: int, bidirectional: bool, points: str | int = "cloud"):
-        self.iters, self.bidirectional, self.points = iters, bidirectional, points
+    def __init__(self, iters: int, bidirectional: bool, points: str | int = "cloud", tol: float = 0.0):
+        self.iters, self.bidirectional, self.points, self.tol = iters, bidirectional, points, tol
 
     @classmethod
     def build(cls, spec, options, context):
@@ -39,10 +41,14 @@ class PolishStage(Stage):
             raise ConfigError("polish is part of the ICP re-scoring (ICP iterations on the selected pose after "
                               "re-scoring): it needs refine > 0 (or leave polish='auto')")
         points = cloud_points_option("polish", options["points"])
-        return cls(n, not spec.partial, points) if n else None
+        tol = options["tol"]
+        if isinstance(tol, bool) or not isinstance(tol, (int, float)) or not 0.0 <= tol < 0.1:
+            raise ConfigError(f"polish tol must be a number in [0, 0.1) (stop once an ICP update turns the pose by "
+                              f"less than tol radians and moves it by less than tol model units; 0: never), got {tol!r}")
+        return cls(n, not spec.partial, points, float(tol)) if n else None
 
     def describe(self) -> dict:
-        return {"iters": self.iters, "points": self.points}
+        return {"iters": self.iters, "points": self.points, "tol": self.tol}
 
     def run(self, state: ObjectState) -> None:
         if not state.rescored or state.selection is None:
@@ -51,7 +57,7 @@ class PolishStage(Stage):
         R_l, t_l = state.learned
         x = state.cloud_points(self.points)                                     # [P', 3]
         Rp, tp, _ = icp_multi(x, state.template, R_l[i][None], t_l[i][None], iters=self.iters,
-                              bidirectional=self.bidirectional)
+                              bidirectional=self.bidirectional, tol=self.tol)
         Rp, tp = apply_calibration(Rp, tp, *state.calibration)                  # [1, 3, 3], [1, 3] category frame
         state.R[i], state.t[i] = Rp[0], tp[0]
         state.set_pose(nearest_rotation(Rp[0]), tp[0])
