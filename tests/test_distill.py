@@ -1,4 +1,5 @@
-"""Partial-view distillation from a complete-shape teacher (train/distill.py): loss semantics, targets, CLI."""
+"""Partial-view distillation from a complete-shape or a partial-view teacher (train/distill.py): loss semantics,
+targets, CLI."""
 import numpy as np
 import pytest
 
@@ -10,7 +11,7 @@ from equipose.core import icosahedral  # noqa: E402
 from equipose.cli import main  # noqa: E402
 from equipose.errors import ConfigError  # noqa: E402
 from equipose.train.fitting.checkpoint import load_checkpoint  # noqa: E402
-from equipose.train.fitting.distill import canonical_clouds, teacher_targets  # noqa: E402
+from equipose.train.fitting.distill import canonical_clouds, teacher_targets, view_teacher_targets  # noqa: E402
 from equipose.train.fitting.losses import distillation_loss, icp_drift, reachable_targets  # noqa: E402
 
 
@@ -205,6 +206,34 @@ def test_teacher_targets_through_the_flip_stage(tmp_path, data_root):
         teacher_targets(teacher, ds, clouds, refine=0, flip_model="bottle-complete", log=lambda *_: None)
 
 
+def test_view_teacher_targets_carry_one_frame_per_instance(tmp_path, data_root):
+    """A partial-view teacher: each instance gets one frame (the consensus of its clean views), carried to every view
+    by its render pose; a symmetric category needs the teacher's calibration, and the teacher must be partial."""
+    from equipose.train.fitting.checkpoint import save_checkpoint
+    from equipose.train.network.model import EquiPoseNet
+    complete, ds, _ = _teacher_and_views(tmp_path, data_root, "airplane", 3)
+    torch.manual_seed(1)
+    partial = tmp_path / "partial.pt"
+    save_checkpoint(partial, EquiPoseNet("tiny", partial=True), category="airplane", scale=2.0, step=7)
+    tt = view_teacher_targets(partial, ds, ds, "none", cache_file=tmp_path / "v.npz", log=lambda *_: None)
+    V = len(ds)
+    assert tt["rotations"].shape == (V, 3, 3) and tt["translations"].shape == (V, 3)
+    assert tt["shapes"].shape[0] == int(ds.instance.max()) + 1 and np.array_equal(tt["instance"], ds.instance)
+    for i in np.unique(ds.instance):
+        views = np.flatnonzero(ds.instance == i)
+        frames = [ds.R[v].T @ tt["rotations"][v] for v in views]             # the object-frame pose of each view
+        centres = [ds.R[v].T @ (tt["translations"][v] - ds.t[v] / ds.scale) for v in views]
+        for F, c in zip(frames[1:], centres[1:]):
+            np.testing.assert_allclose(F, frames[0], atol=1e-5)
+            np.testing.assert_allclose(c, centres[0], atol=1e-5)
+    again = view_teacher_targets(partial, ds, ds, "none", cache_file=tmp_path / "v.npz", log=lambda *_: None)
+    assert np.array_equal(again["rotations"], tt["rotations"])                   # cached
+    with pytest.raises(ConfigError, match="calibrate the teacher"):
+        view_teacher_targets(partial, ds, ds, "continuous:z", log=lambda *_: None)
+    with pytest.raises(ConfigError, match="partial-view model"):
+        view_teacher_targets(complete, ds, ds, "none", log=lambda *_: None)
+
+
 def test_cli_distills_a_partial_model(tmp_path, data_root, capsys):
     teacher_run, run = tmp_path / "teacher", tmp_path / "student"
     common = ["--category", "airplane", "--data-root", str(data_root), "--preset", "tiny", "--batch-size", "2",
@@ -220,6 +249,10 @@ def test_cli_distills_a_partial_model(tmp_path, data_root, capsys):
     assert ck["partial"] and ck["step"] == 2 and ck["training"]["config"]["teacher"].endswith("latest.pt")
     assert ck["training"]["config"]["rotate_augment"] is True
     assert (run / "teacher.npz").is_file()
+    again = tmp_path / "again"                                       # the partial student as a view teacher
+    assert main(["train", *common, "--mode", "partial", "--out", str(again), "--teacher",
+                 str(run / "latest.pt"), "--init", str(run / "latest.pt")]) == 0
+    assert load_checkpoint(again / "latest.pt")["step"] == 2 and (again / "teacher.npz").is_file()
 
 
 def test_rotate_views_turns_views_and_targets_alike():

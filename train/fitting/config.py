@@ -53,7 +53,9 @@ class TrainConfig:
     freeze: str = _opt("", "comma-separated submodules kept fixed (blocks, pose_head, inv_head, decoder), e.g. "
                            "'decoder' when fine-tuning a complete model on partial views")
     teacher: str = _opt("", "partial mode: distil from this complete-shape checkpoint of the same category (its pose "
-                            "and canonical shape on the complete cloud of each rendered view; no pose labels)")
+                            "and canonical shape on the complete cloud of each rendered view; no pose labels), or "
+                            "from a partial-view checkpoint (its consensus pose over each instance's clean rendered "
+                            "views, e.g. to fine-tune a model on --sensor views)")
     teacher_refine: int = _opt(5, "teacher's ICP re-scoring of its k best hypotheses (0 = plain network)")
     teacher_priors: str = _opt("", "distillation: pass the teacher's poses through these frame priors (mirror plane / "
                                    "footprint of each complete training cloud, equipose.runtime.frame_priors), e.g. "

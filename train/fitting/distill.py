@@ -27,7 +27,7 @@ from equipose.core.errors import ConfigError
 
 from equipose.train.fitting.checkpoint import model_from_checkpoint
 
-__all__ = ["complete_clouds", "teacher_targets", "canonical_clouds", "distillation_loss"]
+__all__ = ["complete_clouds", "teacher_targets", "view_teacher_targets", "is_view_teacher", "canonical_clouds"]
 
 
 def complete_clouds(root, category: str, split: str, limit: int | None = None) -> list:
@@ -62,6 +62,127 @@ def canonical_clouds(clouds: list, targets: dict, dataset, points: int = 512) ->
         y = (c - t_i) @ R_i                                                           # [K, 3] rows: R_iᵀ (c − t_i)
         out[i] = y if len(y) == points else y[np.resize(np.arange(len(y)), points)]
     return out
+
+
+def is_view_teacher(teacher) -> bool:
+    """Whether ``teacher`` is a partial-view model — an exported ``.onnx`` file, run through the SDK, or a partial
+    checkpoint — whose targets come from ``view_teacher_targets``, rather than a complete-shape checkpoint
+    (``teacher_targets``)."""
+    if str(teacher).endswith(".onnx"):
+        return True
+    ck = torch.load(teacher, map_location="cpu", weights_only=True)
+    return bool(ck.get("partial", False))
+
+
+def _sdk_view_poses(model_file, clean) -> tuple:
+    """An exported model's poses of every view of ``clean`` through the SDK (its default profile: re-scoring, shape
+    stages): (R [V, 3, 3] category frame, t [V, 3] model units camera frame and canonical shapes [V, M, 3], both in
+    the network's learned frame, δR [3, 3]: the file's calibration, the refined one where it re-scores)."""
+    from equipose.runtime.estimator import PoseEstimator
+    est = PoseEstimator(model_file, threads=2)
+    if abs(float(est.scale) - float(clean.scale)) > 1e-6:
+        raise ConfigError(f"--teacher {model_file}: its scale {est.scale} m is not the training views' {clean.scale} m")
+    rc = est.spec.refine_calibration
+    dR, dt = (rc["rotation"], rc["translation"]) if rc is not None and est.refine else est.spec.calibration
+    dR, dt = np.asarray(dR, np.float64), np.asarray(dt, np.float64)
+    V = len(clean)
+    R, t, shapes = np.empty((V, 3, 3)), np.empty((V, 3)), None
+    for i in tqdm(range(V), desc="view teacher (SDK)"):
+        r = est.predict_points(clean.raw(i)["points_m"])
+        R[i] = r.rotation                                                              # [3, 3] category frame
+        t[i] = r.translation / est.scale + r.rotation @ dt                             # t_cat = t − R_cat δt
+        y = (np.asarray(r.canonical_shape_object, np.float64) / est.scale - dt) @ dR   # [M, 3] learned frame
+        shapes = np.empty((V,) + y.shape, np.float32) if shapes is None else shapes
+        shapes[i] = y
+    return R, t, shapes, dR
+
+
+@torch.no_grad()
+def _network_view_poses(teacher, clean, batch_size: int = 32) -> tuple:
+    """A partial checkpoint's best hypothesis on every view of ``clean`` (the plain network): (R [V, 3, 3] learned
+    frame, t [V, 3] model units camera frame, canonical shapes [V, M, 3] learned frame)."""
+    V = len(clean)
+    R, t, shapes = np.empty((V, 3, 3)), np.empty((V, 3)), None
+    for b in tqdm(range(0, V, batch_size), desc="view teacher (network)"):
+        x = np.stack([clean.sample(i)["points"] for i in range(b, min(b + batch_size, V))])   # [b, N, 3]
+        out = teacher(torch.from_numpy(x))
+        best = out["hypothesis_scores"].argmin(1)                                      # [b]
+        rows = torch.arange(len(best))
+        R[b:b + len(best)] = out["hypothesis_rotations"][rows, best].numpy()
+        t[b:b + len(best)] = out["hypothesis_translations"][rows, best].numpy()
+        S = out["canonical_shape"].numpy().astype(np.float32)                          # [b, M, 3]
+        shapes = np.empty((V,) + S.shape[1:], np.float32) if shapes is None else shapes
+        shapes[b:b + len(best)] = S
+    return R, t, shapes
+
+
+def view_teacher_targets(teacher, dataset, clean, symmetry: str, cache_file=None, log=print) -> dict:
+    """Targets from a partial-view teacher (e.g. a model itself, to fine-tune it on noisy depth): the layout of
+    ``teacher_targets``, for every view of ``dataset``.
+
+    The teacher poses every view of ``clean`` (the same instances rendered without the depth-sensor model): an
+    exported ``.onnx`` file through the SDK (``_sdk_view_poses``), or a partial checkpoint's plain network. Each pose,
+    carried back into the instance's object frame by the view's render pose (R_viewᵀ R, R_viewᵀ (t − t_view / scale)),
+    is one estimate of the instance's frame. Their consensus in the category frame (where ``symmetry`` holds: the
+    medoid view and the views within 15° of it, ``equipose.runtime.copies.consensus_pose``), taken back into the
+    learned frame by the teacher's calibration, is that frame, carried to each view of ``dataset`` as
+    ``teacher_targets`` carries the complete teacher's; the instance's shape is the canonical shape of the view
+    nearest the consensus. As there, the render pose only undoes the known placement of a view: no pose label enters.
+    """
+    from equipose.runtime.copies import consensus_pose
+    from equipose.runtime.hypotheses import symmetric_distance_deg
+    onnx_file = str(teacher).endswith(".onnx")
+    if onnx_file:
+        stamp = pathlib.Path(teacher).stat().st_mtime_ns
+    else:
+        net, ck = model_from_checkpoint(teacher)
+        if not net.partial:
+            raise ConfigError(f"--teacher {teacher}: a view teacher must be a partial-view model (mode partial)")
+        stamp = ck.get("step")
+    key = json.dumps({"view_teacher": str(pathlib.Path(teacher).resolve()), "stamp": stamp, "views": len(dataset),
+                      "clean_views": len(clean), "symmetry": symmetry, "v": 3})
+    if cache_file is not None and pathlib.Path(cache_file).is_file():
+        z = np.load(cache_file)
+        if str(z["key"]) == key:
+            return {k: z[k] for k in ("rotations", "translations", "shapes", "instance")}
+    if onnx_file:
+        R, t, shapes_v, dR = _sdk_view_poses(teacher, clean)                            # R: category frame
+    else:
+        R, t, shapes_v = _network_view_poses(net, clean)
+        cal = ck.get("calibration")
+        if cal is None and symmetry != "none":
+            raise ConfigError(f"--teacher {teacher}: a symmetric category's views agree about the category axis; "
+                              "calibrate the teacher first (equipose calibrate)")
+        dR = np.eye(3) if cal is None else np.asarray(cal["rotation"], np.float64)
+        R = R @ dR.T                                                                   # category frame: R δRᵀ
+    Rv = np.asarray(clean.R, np.float64)                                               # [V, 3, 3]
+    tv = np.asarray(clean.t, np.float64) / clean.scale                                 # [V, 3] model units
+    R_obj = np.transpose(Rv, (0, 2, 1)) @ R                                            # [V, 3, 3] R_viewᵀ R_cat
+    t_obj = np.einsum("vji,vj->vi", Rv, t - tv)                                        # [V, 3] R_viewᵀ (t − t_view)
+    inst_clean = np.asarray(clean.instance)                                            # [V]
+    n_inst = int(max(inst_clean.max(), np.asarray(dataset.instance).max())) + 1
+    R_inst, t_inst = np.empty((n_inst, 3, 3)), np.empty((n_inst, 3))
+    shapes = np.empty((n_inst,) + shapes_v.shape[1:], np.float32)
+    agree = []
+    for i in range(n_inst):
+        views = np.flatnonzero(inst_clean == i)
+        if not len(views):
+            raise ConfigError(f"view teacher: instance {i} has no clean view")
+        R_c, t_c, support = consensus_pose(R_obj[views], t_obj[views], symmetry)
+        near = views[int(np.argmin(symmetric_distance_deg(R_c, R_obj[views], symmetry)))]
+        R_inst[i], t_inst[i], shapes[i] = R_c @ dR, t_c, shapes_v[near]                # learned frame: R_cat δR
+        agree.append(float(support.mean()))
+    inst = np.asarray(dataset.instance)                                                # [V']
+    Rd = np.asarray(dataset.R, np.float64)                                             # [V', 3, 3]
+    res = {"rotations": Rd @ R_inst[inst],                                             # [V', 3, 3]
+           "translations": np.einsum("vij,vj->vi", Rd, t_inst[inst]) + dataset.t / dataset.scale,   # [V', 3]
+           "shapes": shapes,                                                           # [I, M, 3]
+           "instance": inst.astype(np.int64)}                                          # [V']
+    if cache_file is not None:
+        np.savez(cache_file, key=np.str_(key), **res)
+    log(f"view teacher targets: {n_inst} instances from {len(clean)} clean views of {teacher} (views within 15° of "
+        f"their instance's consensus: median {np.median(agree):.2f}), carried to {len(dataset)} views")
+    return res
 
 
 def _flip_templates(model, scale: float) -> dict:

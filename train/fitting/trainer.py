@@ -30,7 +30,8 @@ from equipose.train.data.modelnet import MODELNET_SCALE, category_symmetry, defa
 from equipose.train.evaluation.inference import calibrate_model, predict_torch
 from equipose.train.evaluation.calibration import apply_calibration
 from equipose.eval.metrics import rotation_errors
-from equipose.train.fitting.distill import canonical_clouds, complete_clouds, teacher_targets
+from equipose.train.fitting.distill import (canonical_clouds, complete_clouds, is_view_teacher,
+                                            teacher_targets, view_teacher_targets)
 from equipose.train.fitting.losses import axial_symmetry_loss, chamfer_min_of_60_loss, distillation_loss
 from equipose.train.network.model import EquiPoseNet
 
@@ -164,9 +165,16 @@ def train(cfg: TrainConfig, resume: bool = False, log=print) -> pathlib.Path:
             raise ConfigError(f"teacher: {len(clouds)} complete clouds for "
                               f"{int(train_ds.instance.max()) + 1} instances")
         out.mkdir(parents=True, exist_ok=True)
-        tt = teacher_targets(cfg.teacher, train_ds, clouds, refine=cfg.teacher_refine, cache_file=out / "teacher.npz",
-                             frame_priors=cfg.teacher_priors, flip_model=cfg.teacher_flip,
-                             log=log if rank == 0 else (lambda *_: None))
+        quiet = log if rank == 0 else (lambda *_: None)
+        if is_view_teacher(cfg.teacher):                # the same instances' clean views, through a partial model
+            clean = train_ds if not cfg.sensor else \
+                _datasets(dataclasses.replace(cfg, sensor=False), model.num_points)[0]
+            tt = view_teacher_targets(cfg.teacher, train_ds, clean, symmetry, cache_file=out / "teacher.npz",
+                                      log=quiet)
+        else:
+            tt = teacher_targets(cfg.teacher, train_ds, clouds, refine=cfg.teacher_refine,
+                                 cache_file=out / "teacher.npz", frame_priors=cfg.teacher_priors,
+                                 flip_model=cfg.teacher_flip, log=quiet)
         tt = {**tt, "clouds": canonical_clouds(clouds, tt, train_ds)} if cfg.cloud_weight > 0 else tt   # + [I, K, 3]
         targets = {k: torch.from_numpy(np.asarray(v, np.int64 if k == "instance" else np.float32)).to(device)
                    for k, v in tt.items()}
