@@ -126,11 +126,10 @@ def view_teacher_targets(teacher, dataset, clean, symmetry: str, cache_file=None
     is one estimate of the instance's frame. Their consensus in the category frame (where ``symmetry`` holds: the
     medoid view and the views within 15° of it, ``equipose.runtime.copies.consensus_pose``), taken back into the
     learned frame by the teacher's calibration, is that frame, carried to each view of ``dataset`` as
-    ``teacher_targets`` carries the complete teacher's; the instance's shape is the canonical shape of the view
-    nearest the consensus. As there, the render pose only undoes the known placement of a view: no pose label enters.
+    ``teacher_targets`` carries the complete teacher's; the instance's shape is the mean canonical shape of the views
+    that support the consensus (point by point, as the SDK's rotated copies average theirs). As there, the render pose only undoes the known placement of a view: no pose label enters.
     """
     from equipose.runtime.copies import consensus_pose
-    from equipose.runtime.hypotheses import symmetric_distance_deg
     onnx_file = str(teacher).endswith(".onnx")
     if onnx_file:
         stamp = pathlib.Path(teacher).stat().st_mtime_ns
@@ -140,7 +139,7 @@ def view_teacher_targets(teacher, dataset, clean, symmetry: str, cache_file=None
             raise ConfigError(f"--teacher {teacher}: a view teacher must be a partial-view model (mode partial)")
         stamp = ck.get("step")
     key = json.dumps({"view_teacher": str(pathlib.Path(teacher).resolve()), "stamp": stamp, "views": len(dataset),
-                      "clean_views": len(clean), "symmetry": symmetry, "v": 3})
+                      "clean_views": len(clean), "symmetry": symmetry, "v": 4})
     if cache_file is not None and pathlib.Path(cache_file).is_file():
         z = np.load(cache_file)
         if str(z["key"]) == key:
@@ -169,8 +168,8 @@ def view_teacher_targets(teacher, dataset, clean, symmetry: str, cache_file=None
         if not len(views):
             raise ConfigError(f"view teacher: instance {i} has no clean view")
         R_c, t_c, support = consensus_pose(R_obj[views], t_obj[views], symmetry)
-        near = views[int(np.argmin(symmetric_distance_deg(R_c, R_obj[views], symmetry)))]
-        R_inst[i], t_inst[i], shapes[i] = R_c @ dR, t_c, shapes_v[near]                # learned frame: R_cat δR
+        R_inst[i], t_inst[i] = R_c @ dR, t_c                                            # learned frame: R_cat δR
+        shapes[i] = shapes_v[views[support]].mean(0)                                   # point by point, as copies
         agree.append(float(support.mean()))
     inst = np.asarray(dataset.instance)                                                # [V']
     Rd = np.asarray(dataset.R, np.float64)                                             # [V', 3, 3]
