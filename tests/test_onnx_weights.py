@@ -117,4 +117,5 @@ def test_seed_and_one_slice_accumulate_steps(tmp_path, data_root):
     assert (state / "bottle-complete" / "config.json").read_text() == durable   # for that slice only
     ck = torch.load(state / "bottle-complete" / "latest.pt", map_location="cpu", weights_only=True)
     b = cfg["batch_size"]                      # the lr schedule counts samples, so a batch override keeps its epoch
-    assert ck["training"]["samples_seen"] == after["step_counter"] * b + (again["step_counter"] - after["step_counter"]) * 3
+    seen = after["step_counter"] * b + (again["step_counter"] - after["step_counter"]) * 3
+    assert ck["training"]["samples_seen"] == seen

@@ -121,15 +121,19 @@ def view_teacher_targets(teacher, dataset, clean, symmetry: str, cache_file=None
     ``teacher_targets``, for every view of ``dataset``.
 
     The teacher poses every view of ``clean`` (the same instances rendered without the depth-sensor model): an
-    exported ``.onnx`` file through the SDK (``_sdk_view_poses``), or a partial checkpoint's plain network. Each pose,
-    carried back into the instance's object frame by the view's render pose (R_viewᵀ R, R_viewᵀ (t − t_view / scale)),
-    is one estimate of the instance's frame. Their consensus in the category frame (where ``symmetry`` holds: the
-    medoid view and the views within 15° of it, ``equipose.runtime.copies.consensus_pose``), taken back into the
-    learned frame by the teacher's calibration, is that frame, carried to each view of ``dataset`` as
-    ``teacher_targets`` carries the complete teacher's; the instance's shape is the mean canonical shape of the views
-    that support the consensus (point by point, as the SDK's rotated copies average theirs). As there, the render pose only undoes the known placement of a view: no pose label enters.
+    exported ``.onnx`` file through the SDK (``_sdk_view_poses``), or a partial checkpoint's plain network. Each
+    pose, carried back into the instance's object frame by the view's render pose (R_viewᵀ R,
+    R_viewᵀ (t − t_view / scale)), is one estimate of the instance's frame. Their consensus in the category frame
+    (where ``symmetry`` holds: the medoid view and the views within 15° of it,
+    ``equipose.runtime.copies.consensus_pose``), taken back into the learned frame by the teacher's calibration, is
+    that frame, carried to each view of ``dataset`` as ``teacher_targets`` carries the complete teacher's. The
+    instance's shape is the mean canonical shape of the views that support the consensus (point by point, as the
+    SDK's rotated copies average theirs); for a symmetric category, whose supporting views may spin about its axis,
+    the shape of the view nearest the consensus. As there, the render pose only undoes the known placement of a view:
+    no pose label enters.
     """
     from equipose.runtime.copies import consensus_pose
+    from equipose.runtime.hypotheses import symmetric_distance_deg
     onnx_file = str(teacher).endswith(".onnx")
     if onnx_file:
         stamp = pathlib.Path(teacher).stat().st_mtime_ns
@@ -139,7 +143,7 @@ def view_teacher_targets(teacher, dataset, clean, symmetry: str, cache_file=None
             raise ConfigError(f"--teacher {teacher}: a view teacher must be a partial-view model (mode partial)")
         stamp = ck.get("step")
     key = json.dumps({"view_teacher": str(pathlib.Path(teacher).resolve()), "stamp": stamp, "views": len(dataset),
-                      "clean_views": len(clean), "symmetry": symmetry, "v": 4})
+                      "clean_views": len(clean), "symmetry": symmetry, "v": 5})
     if cache_file is not None and pathlib.Path(cache_file).is_file():
         z = np.load(cache_file)
         if str(z["key"]) == key:
@@ -169,7 +173,10 @@ def view_teacher_targets(teacher, dataset, clean, symmetry: str, cache_file=None
             raise ConfigError(f"view teacher: instance {i} has no clean view")
         R_c, t_c, support = consensus_pose(R_obj[views], t_obj[views], symmetry)
         R_inst[i], t_inst[i] = R_c @ dR, t_c                                            # learned frame: R_cat δR
-        shapes[i] = shapes_v[views[support]].mean(0)                                   # point by point, as copies
+        if symmetry == "none":
+            shapes[i] = shapes_v[views[support]].mean(0)                               # point by point, as copies
+        else:                                                                          # the consensus' own view
+            shapes[i] = shapes_v[views[int(np.argmin(symmetric_distance_deg(R_c, R_obj[views], symmetry)))]]
         agree.append(float(support.mean()))
     inst = np.asarray(dataset.instance)                                                # [V']
     Rd = np.asarray(dataset.R, np.float64)                                             # [V', 3, 3]

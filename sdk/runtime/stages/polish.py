@@ -44,7 +44,8 @@ class PolishStage(Stage):
         tol = options["tol"]
         if isinstance(tol, bool) or not isinstance(tol, (int, float)) or not 0.0 <= tol < 0.1:
             raise ConfigError(f"polish tol must be a number in [0, 0.1) (stop once an ICP update turns the pose by "
-                              f"less than tol radians and moves it by less than tol model units; 0: never), got {tol!r}")
+                              f"less than tol radians and moves it by less than tol model units; 0: never), "
+                              f"got {tol!r}")
         return cls(n, not spec.partial, points, float(tol)) if n else None
 
     def describe(self) -> dict:
