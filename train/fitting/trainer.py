@@ -48,15 +48,17 @@ def _render_opts(cfg: TrainConfig, split: str) -> dict:
     return {"views": cfg.views if split == "train" else cfg.test_views}
 
 
+def _train_dataset(cfg: TrainConfig, num_points: int):
+    return make_dataset(cfg.data_root or str(default_data_root()), cfg.category, cfg.mode, "train", num_points,
+                        train=True, limit=cfg.train_limit, cache_dir=cfg.cache_dir or None,
+                        render_opts=_render_opts(cfg, "train"))
+
+
 def _datasets(cfg: TrainConfig, num_points: int) -> tuple:
-    root = cfg.data_root or str(default_data_root())
-    cache = cfg.cache_dir or None
-    train_ds = make_dataset(root, cfg.category, cfg.mode, "train", num_points, train=True, limit=cfg.train_limit,
-                            cache_dir=cache, render_opts=_render_opts(cfg, "train"))
-    val_ds = make_dataset(root, cfg.category, cfg.mode, "test", num_points, train=False,
-                          limit=None if cfg.train_limit is None else max(2, cfg.val_size // 5),
-                          cache_dir=cache, render_opts=_render_opts(cfg, "test"))
-    return train_ds, val_ds
+    val_ds = make_dataset(cfg.data_root or str(default_data_root()), cfg.category, cfg.mode, "test", num_points,
+                          train=False, limit=None if cfg.train_limit is None else max(2, cfg.val_size // 5),
+                          cache_dir=cfg.cache_dir or None, render_opts=_render_opts(cfg, "test"))
+    return _train_dataset(cfg, num_points), val_ds
 
 
 def validation_inputs(train_ds, val_ds, cfg: TrainConfig) -> dict:
@@ -160,15 +162,19 @@ def train(cfg: TrainConfig, resume: bool = False, log=print) -> pathlib.Path:
         val_inputs = validation_inputs(train_ds, val_ds, cfg)
     targets = None
     if cfg.teacher:
-        clouds = complete_clouds(cfg.data_root or str(default_data_root()), cfg.category, "train", cfg.train_limit)
-        if len(clouds) <= int(train_ds.instance.max()):
-            raise ConfigError(f"teacher: {len(clouds)} complete clouds for "
-                              f"{int(train_ds.instance.max()) + 1} instances")
+        view_teacher = is_view_teacher(cfg.teacher)
+        clouds = None
+        if not view_teacher or cfg.cloud_weight > 0:  # the complete clouds: a complete teacher's input, the cloud term
+            clouds = complete_clouds(cfg.data_root or str(default_data_root()), cfg.category, "train",
+                                     cfg.train_limit)
+            if len(clouds) <= int(train_ds.instance.max()):
+                raise ConfigError(f"teacher: {len(clouds)} complete clouds for "
+                                  f"{int(train_ds.instance.max()) + 1} instances")
         out.mkdir(parents=True, exist_ok=True)
         quiet = log if rank == 0 else (lambda *_: None)
-        if is_view_teacher(cfg.teacher):                # the same instances' clean views, through a partial model
-            clean = train_ds if not cfg.sensor else \
-                _datasets(dataclasses.replace(cfg, sensor=False), model.num_points)[0]
+        if view_teacher:                                # the same instances' clean views, through a partial model
+            clean = train_ds if not cfg.sensor else _train_dataset(dataclasses.replace(cfg, sensor=False),
+                                                                   model.num_points)
             tt = view_teacher_targets(cfg.teacher, train_ds, clean, symmetry, cache_file=out / "teacher.npz",
                                       log=quiet)
         else:
