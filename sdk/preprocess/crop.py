@@ -205,17 +205,20 @@ def auto_plane_height(heights) -> float:
 
 @njit(cache=True)
 def _lattice_pixels(valid, s, y0, x0) -> tuple:
-    """(rows [P], cols [P]) int64 frame pixels of the ``valid`` [h, w] window pixels on every ``s``-th row and column,
-    row-major; the window starts at frame pixel (``y0``, ``x0``)."""
+    """(rows [P], cols [P]) int64 frame pixels of the ``valid`` [h, w] window pixels on the frame's lattice of pitch
+    ``s`` (frame rows and columns that are multiples of ``s``), row-major; the window starts at frame pixel (``y0``,
+    ``x0``). The lattice belongs to the frame, not to the window: two regions over the same object (a box and the
+    object's mask, or a detector's box from one frame to the next) sample the same pixels wherever they overlap."""
     h, w = valid.shape
+    r0, c0 = (-y0) % s, (-x0) % s                                               # first window row / column on it
     n = 0
-    for r in range(0, h, s):
-        for c in range(0, w, s):
+    for r in range(r0, h, s):
+        for c in range(c0, w, s):
             n += valid[r, c]
     rows, cols = np.empty(n, np.int64), np.empty(n, np.int64)
     k = 0
-    for r in range(0, h, s):
-        for c in range(0, w, s):
+    for r in range(r0, h, s):
+        for c in range(c0, w, s):
             if valid[r, c]:
                 rows[k], cols[k] = r + y0, c + x0
                 k += 1
@@ -289,14 +292,16 @@ def crop_points(depth, K, *, box=None, mask=None, depth_unit="mm", image_size=No
     plane removal (points less than ``plane_height`` m above the frame's dominant plane, or beyond it, are dropped;
     "auto": ``PLANE_NOISE_SIGMAS`` × the depth noise of the table pixels in the box, 6–12 mm, ``auto_plane_height``;
     ``support_plane`` = precomputed (normal, offset) from ``find_support_plane``; default on for a box without a
-    mask, and skipped when the frame has no dominant plane or too few points would remain) → regular pixel-grid
-    subsampling to at most ``max_points`` → background rejection (default on for a box without a mask: the object
-    the box is drawn around, ``box_object_cluster``, first among the depth clusters (background far behind, occluders
-    well in front), then among the connected surfaces of that cluster on the pixel grid (``surface_segments``: an
-    occluder whose depths overlap the object's), where a surface of a nearer cluster joins only as a part of the
-    object grown into that cluster (a bowl's front wall before its inside); what lies in front of it is reported as
-    ``diagnostics["occluded_fraction"]``) → statistical outlier removal (``outlier_std``; 0 disables): on the pixel grid with its 8
-    neighbours (``organized_outlier_mask``) for the default ``outlier_k`` = 8, else k-d tree with k = ``outlier_k``.
+    mask, and skipped when the frame has no dominant plane or too few points would remain) → subsampling to at most
+    ``max_points`` on the frame's regular pixel lattice (rows and columns that are multiples of its pitch, so a box
+    moved by a pixel or the object's mask keep the same pixels of the object) → background rejection (default on for a
+    box without a mask: the object the box is drawn around, ``box_object_cluster``, first among the depth clusters
+    (background far behind, occluders well in front), then among the connected surfaces of that cluster on the pixel
+    grid (``surface_segments``: an occluder whose depths overlap the object's), where a surface of a nearer cluster
+    joins only as a part of the object grown into that cluster (a bowl's front wall before its inside); what lies in
+    front of it is reported as ``diagnostics["occluded_fraction"]``) → statistical outlier removal (``outlier_std``; 0
+    disables): on the pixel grid with its 8 neighbours (``organized_outlier_mask``) for the default ``outlier_k`` = 8,
+    else k-d tree with k = ``outlier_k``.
     Raises ``DepthDtypeError``, ``DepthUnitError``, ``EmptyDepthError``, ``IntrinsicsError``, ``RegionError``,
     ``TooFewPointsError``. ``check_plausible=False`` skips the unit plausibility check (already-validated frames);
     ``prevalidated=True`` takes ``depth`` as the float32 metres that ``depth_to_metres`` returned for this frame and
@@ -349,7 +354,7 @@ def crop_points(depth, K, *, box=None, mask=None, depth_unit="mm", image_size=No
     s = 1                                                                       # grid pitch of the kept pixels
     if n_valid > max_points:                                                    # regular grid, deterministic
         s = int(math.ceil(math.sqrt(n_valid / max_points)))
-        if np.count_nonzero(valid[::s, ::s]) < min_points:                      # pathological sparse layouts
+        if np.count_nonzero(valid[(-y0) % s::s, (-x0) % s::s]) < min_points:    # pathological sparse layouts
             rows, cols = np.nonzero(valid)
             keep = np.zeros(len(rows), bool)
             keep[:: int(math.ceil(len(rows) / max_points))] = True

@@ -424,7 +424,8 @@ def _choose_surface(z, rows, cols, box, labels, cut_i, cut_j, points, focal, min
             if sides[s, p]:
                 reach[labels[p]] = True
         enclosing &= reach
-    half_diag_px = 0.5 * math.hypot(box[2] - box[0], box[3] - box[1])
+    half_diag_px = 0.5 * math.hypot(box[2] - box[0], box[3] - box[1]) + step   # + a lattice pitch: the points'
+                                                                             # extent is known to ± one pitch
     best_score = -np.inf
     best_keep, best_jumps = labels == big[0], np.full(n_labels, np.nan)
     if in_front[big[0]]:                                    # no candidate at all: the cluster cut, never what's in front

@@ -47,7 +47,10 @@ def test_predict_one_rgbd_pair_from_files(tmp_path, capsys, tiny_model):
     assert main(["predict", "-m", str(tiny_model), "--depth", str(tmp_path / "d01.png"), "--intrinsics",
                  str(tmp_path / "K.json"), "--depth-unit", "0.0001"] + box) == 0
     b = json.loads(capsys.readouterr().out.strip().splitlines()[-1])["poses"][0]
-    np.testing.assert_allclose(a["translation_m"], b["translation_m"], atol=2e-3)
+    assert a["num_points"] == b["num_points"]                                   # the same crop of the same frame
+    np.testing.assert_allclose(a["points_centre_m"], b["points_centre_m"], atol=1e-5)
+    np.testing.assert_allclose(a["translation_m"], b["translation_m"], atol=5e-3)   # a random-weights network: the
+                                                                                # depth unit's rounding moves its pose
     assert main(["predict", "-m", str(tiny_model), "--depth", str(tmp_path / "d.png")] + box) == 2   # no intrinsics
 
 

@@ -71,13 +71,13 @@ def test_plane_contact_reads_how_far_the_posed_shape_floats_above_or_sinks_into_
 
 
 def test_a_frame_prediction_carries_the_support_plane_evidence():
-    """On the bundled mug frame (a mug standing on a table) the plane is found for a mask prompt with no up prior,
-    and an upright cup pose reads a small tilt."""
+    """On the bundled mug frame (a mug standing on a table) the plane is found for a box prompt with no up prior,
+    and the mug model's upright pose reads a small tilt."""
     from equipose.samples import sample_objects, sample_path
     from equipose.sources.folder import FolderSource
     frame = next(iter(FolderSource(sample_path())))
     box = sample_objects()[0]["box"]
-    r = PoseEstimator("cup-tabletop").predict(frame.depth, frame.K, box=box, depth_unit=frame.depth_unit, up=None)
+    r = PoseEstimator("mug-tabletop").predict(frame.depth, frame.K, box=box, depth_unit=frame.depth_unit, up=None)
     tilt = r.extras["evidence"]["plane_tilt"]
     axis_deg = math.degrees(math.acos(1 - 2 * tilt))
     assert 0.0 < tilt < 0.05 and axis_deg < 20.0

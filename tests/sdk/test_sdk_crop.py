@@ -32,6 +32,24 @@ def test_mask_crop_and_float_metres_agree_with_uint16_mm():
     np.testing.assert_allclose(a.points, b.points, atol=1e-6)
 
 
+def test_the_crop_lattice_belongs_to_the_frame_not_to_the_box():
+    """A box moved by a pixel (a detector's jitter) or the object's mask samples the same pixels of the object: the
+    thinning lattice sits on frame rows and columns that are multiples of its pitch."""
+    depth, hit = sphere_scene(CENTRE, RADIUS)
+    crops = [crop_points(depth, K_VGA, box=(240 + d, 150 + d, 170, 170), max_points=512) for d in (0, 1, 2, 3)]
+    crops.append(crop_points(depth, K_VGA, mask=hit, max_points=512))
+    pitches = set()
+    for c in crops:
+        rows, cols = c.pixels.T
+        pitch = int(np.gcd.reduce(np.concatenate([np.diff(np.unique(rows)), np.diff(np.unique(cols))])))
+        pitches.add(pitch)
+        assert pitch > 1 and np.all(rows % pitch == 0) and np.all(cols % pitch == 0)
+    assert len(pitches) == 1
+    sets = [set(map(tuple, c.pixels.tolist())) for c in crops]
+    for other in sets[1:]:
+        assert len(sets[0] & other) > 0.9 * min(len(sets[0]), len(other))
+
+
 def test_intrinsics_are_rescaled_to_the_frame_size():
     depth, hit = sphere_scene(CENTRE, RADIUS)
     K2 = check_intrinsics(K_VGA, (480, 640))

@@ -81,10 +81,10 @@ def render_occluded(shape: dict, rng: np.random.Generator, *, distance_m=(0.5, 1
         tab = table_surfels(z_table, max(3.0 * r, 0.4), max(0.03 * r, 0.004))
         d_tab = splat_surfels(tab["points"] @ R.T + t, tab["normals"] @ R.T, tab["radii"], K, size)
         d_occ = np.full_like(d_obj, np.inf)
-        if rng.random() < occluder:
+        ground = dist * np.cos(el)                                              # horizontal camera distance
+        if rng.random() < occluder and 0.5 * ground > 1.2 * r:                 # (a steep, near camera: no room)
             toward = np.array([np.cos(az), np.sin(az), 0.0])                   # horizontal, object → camera
             right = np.cross([0.0, 0.0, 1.0], toward)
-            ground = dist * np.cos(el)                                          # horizontal camera distance
             along = rng.uniform(1.2 * r, min(3.0 * r, 0.5 * ground))
             sight = -z_table + along * np.tan(el)                               # line of sight's height there
             centre = along * toward + rng.uniform(-1.0, 1.0) * r * right + np.array([0.0, 0.0, z_table])
