@@ -10,19 +10,16 @@ the median and mean of those per-object figures over the objects.
 """
 from __future__ import annotations
 
-import argparse
 import json
-import os
 import pathlib
 import sys
 
 import numpy as np
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
-from box_vs_mask import objects  # noqa: E402
+from box_vs_mask import objects, read_scenes, scene_arguments  # noqa: E402
 
 from equipose import PoseEstimator  # noqa: E402
-from equipose.sources.pcd import read_organized_cloud  # noqa: E402
 
 
 def _axis(r) -> np.ndarray:
@@ -48,20 +45,10 @@ def spread(est, cloud: dict, box, shift: int) -> tuple:
 
 
 def main(argv=None) -> int:
-    root = pathlib.Path(os.environ.get("EQUIPOSE_DATA", pathlib.Path(__file__).resolve().parents[2].parent
-                                        / "shared" / "data"))
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--models", nargs="+", default=["can-tabletop", "cup-tabletop", "bowl-tabletop"])
-    ap.add_argument("--data", default=str(root / "kinect_pcl_objects" / "mOSD_learn_cylindric"))
+    ap = scene_arguments(__doc__.splitlines()[0])
     ap.add_argument("--shift", type=int, default=2, help="pixels the box moves each way")
-    ap.add_argument("--profile", default="default")
-    ap.add_argument("--json", help="write per-object rows here")
     a = ap.parse_args(argv)
-    scenes = sorted(pathlib.Path(a.data).glob("learn*.pcd"))
-    if not scenes:
-        print(f"no learn*.pcd under {a.data}", file=sys.stderr)
-        return 1
-    clouds = {p.stem: read_organized_cloud(p) for p in scenes}
+    clouds = read_scenes(a.data)
     rows = []
     print(f"{'model':16s} {'objects':>7s} {'centre mm med':>13s} {'mean':>6s} {'axis° med':>9s} {'mean':>6s}")
     for model in a.models:

@@ -42,21 +42,34 @@ def objects(cloud: dict, min_pixels: int = 200) -> list:
     return out
 
 
-def main(argv=None) -> int:
+def scene_arguments(description: str) -> argparse.ArgumentParser:
+    """The arguments the mOSD scene tools share: --models, --data (default ../shared/data or $EQUIPOSE_DATA),
+    --profile, --json."""
     root = pathlib.Path(os.environ.get("EQUIPOSE_DATA", pathlib.Path(__file__).resolve().parents[2].parent
                                         / "shared" / "data"))
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(description=description)
     ap.add_argument("--models", nargs="+", default=["can-tabletop", "cup-tabletop", "bowl-tabletop"])
     ap.add_argument("--data", default=str(root / "kinect_pcl_objects" / "mOSD_learn_cylindric"))
     ap.add_argument("--profile", default="default")
-    ap.add_argument("--up", choices=("none", "plane"), default="none", help="the up prior of both predictions")
     ap.add_argument("--json", help="write per-object rows here")
+    return ap
+
+
+def read_scenes(folder) -> dict:
+    """{scene name: organized cloud} of the ``learn*.pcd`` files under ``folder``; exits with status 1 when there are
+    none."""
+    clouds = {p.stem: read_organized_cloud(p) for p in sorted(pathlib.Path(folder).glob("learn*.pcd"))}
+    if not clouds:
+        print(f"no learn*.pcd under {folder}", file=sys.stderr)
+        raise SystemExit(1)
+    return clouds
+
+
+def main(argv=None) -> int:
+    ap = scene_arguments(__doc__.splitlines()[0])
+    ap.add_argument("--up", choices=("none", "plane"), default="none", help="the up prior of both predictions")
     a = ap.parse_args(argv)
-    scenes = sorted(pathlib.Path(a.data).glob("learn*.pcd"))
-    if not scenes:
-        print(f"no learn*.pcd under {a.data}", file=sys.stderr)
-        return 1
-    clouds = {p.stem: read_organized_cloud(p) for p in scenes}
+    clouds = read_scenes(a.data)
     rows = []
     for model in a.models:
         try:
