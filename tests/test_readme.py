@@ -29,7 +29,7 @@ def test_readme_is_a_quickstart():
 def test_readme_python_runs(capsys):
     (code,) = _blocks("python")
     exec(compile(code, "README.md", "exec"), {})
-    assert "cup R(rotvec°)=" in capsys.readouterr().out
+    assert "mug R(rotvec°)=" in capsys.readouterr().out
 
 
 def _cli_lines() -> list:
