@@ -351,19 +351,14 @@ def crop_points(depth, K, *, box=None, mask=None, depth_unit="mm", image_size=No
             if n_above >= min_points:
                 valid, n_valid = above, int(n_above)
                 diag["above_plane"] = n_valid
-    s = 1                                                                       # grid pitch of the kept pixels
-    if n_valid > max_points:                                                    # regular grid, deterministic
-        s = int(math.ceil(math.sqrt(n_valid / max_points)))
-        if np.count_nonzero(valid[(-y0) % s::s, (-x0) % s::s]) < min_points:    # pathological sparse layouts
-            rows, cols = np.nonzero(valid)
-            keep = np.zeros(len(rows), bool)
-            keep[:: int(math.ceil(len(rows) / max_points))] = True
-            rows, cols = rows[keep] + y0, cols[keep] + x0                       # frame pixels
-            s = 0                                                               # not a grid any more
-        else:
-            rows, cols = _lattice_pixels(valid, s, y0, x0)                      # [P] frame pixels on the lattice
-    else:
-        rows, cols = _lattice_pixels(valid, 1, y0, x0)                          # [P], [P] frame pixels
+    s = 1 if n_valid <= max_points else int(math.ceil(math.sqrt(n_valid / max_points)))   # grid pitch, deterministic
+    rows, cols = _lattice_pixels(valid, s, y0, x0)                              # [P], [P] frame pixels on the lattice
+    if len(rows) < min_points:                                                  # pathological sparse layouts
+        rows, cols = np.nonzero(valid)
+        keep = np.zeros(len(rows), bool)
+        keep[:: int(math.ceil(len(rows) / max_points))] = True
+        rows, cols = rows[keep] + y0, cols[keep] + x0                           # frame pixels
+        s = 0                                                                   # not a grid any more
     diag["subsampled"] = int(len(rows))
     pts = _backproject(d, rows, cols, Kf)                                       # [P, 3] float64 m
     z = pts[:, 2]                                                               # [P]
