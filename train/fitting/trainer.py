@@ -48,17 +48,16 @@ def _render_opts(cfg: TrainConfig, split: str) -> dict:
     return {"views": cfg.views if split == "train" else cfg.test_views}
 
 
-def _train_dataset(cfg: TrainConfig, num_points: int):
-    return make_dataset(cfg.data_root or str(default_data_root()), cfg.category, cfg.mode, "train", num_points,
-                        train=True, limit=cfg.train_limit, cache_dir=cfg.cache_dir or None,
-                        render_opts=_render_opts(cfg, "train"))
+def _dataset(cfg: TrainConfig, split: str, num_points: int):
+    """The "train" or "test" split as the config asks (a ``train_limit`` also thins the validation instances)."""
+    limit = cfg.train_limit if split == "train" or cfg.train_limit is None else max(2, cfg.val_size // 5)
+    return make_dataset(cfg.data_root or str(default_data_root()), cfg.category, cfg.mode, split, num_points,
+                        train=split == "train", limit=limit, cache_dir=cfg.cache_dir or None,
+                        render_opts=_render_opts(cfg, split))
 
 
 def _datasets(cfg: TrainConfig, num_points: int) -> tuple:
-    val_ds = make_dataset(cfg.data_root or str(default_data_root()), cfg.category, cfg.mode, "test", num_points,
-                          train=False, limit=None if cfg.train_limit is None else max(2, cfg.val_size // 5),
-                          cache_dir=cfg.cache_dir or None, render_opts=_render_opts(cfg, "test"))
-    return _train_dataset(cfg, num_points), val_ds
+    return _dataset(cfg, "train", num_points), _dataset(cfg, "test", num_points)
 
 
 def validation_inputs(train_ds, val_ds, cfg: TrainConfig) -> dict:
@@ -173,8 +172,8 @@ def train(cfg: TrainConfig, resume: bool = False, log=print) -> pathlib.Path:
         out.mkdir(parents=True, exist_ok=True)
         quiet = log if rank == 0 else (lambda *_: None)
         if view_teacher:                                # the same instances' clean views, through a partial model
-            clean = train_ds if not cfg.sensor else _train_dataset(dataclasses.replace(cfg, sensor=False),
-                                                                   model.num_points)
+            clean = train_ds if not cfg.sensor else _dataset(dataclasses.replace(cfg, sensor=False), "train",
+                                                             model.num_points)
             tt = view_teacher_targets(cfg.teacher, train_ds, clean, symmetry, cache_file=out / "teacher.npz",
                                       log=quiet)
         else:
