@@ -25,13 +25,15 @@ import numpy as np
 
 from equipose.core.errors import ConfigError, MetadataError
 from equipose.core.metadata import float_entry
+from equipose.core.normals import point_normals
 from equipose.core.opening import top_closure
 
 __all__ = ["Stage", "ObjectState", "register_stage", "unregister_stage", "registered_stages", "stage_metadata_keys",
-           "STAGE_ORDER", "TOP_PERCENTILE", "cloud_points_option", "int_option", "MIN_FIT_POINTS", "ShareCapStage",
+           "STAGE_ORDER", "TOP_PERCENTILE", "NORMAL_NEIGHBOURS", "cloud_points_option", "int_option", "MIN_FIT_POINTS", "ShareCapStage",
            "parse_share_cap", "is_share"]
 
 STAGE_ORDER: list = []          # stage names in run order (registration inserts each after its ``after``)
+NORMAL_NEIGHBOURS = 12          # ``ObjectState.normals``: points per PCA normal
 TOP_PERCENTILE = 95.0           # ``ObjectState.top_height``: this percentile of the crop points' heights
 _REGISTRY: dict = {}
 
@@ -231,6 +233,7 @@ class ObjectState:
     extras: dict = field(default_factory=dict)
     crop: dict = field(default_factory=dict)
     _closure: tuple | None = field(default=None, repr=False)      # (rotation, translation, Closure) last read
+    _normals: np.ndarray | None = field(default=None, repr=False)  # [N, 3] of the model input, once read
 
     @property
     def points(self) -> np.ndarray:
@@ -249,6 +252,13 @@ class ObjectState:
             return self.every_point if choice == "cloud" else self.points
         cloud = self.every_point
         return cloud[:: -(-len(cloud) // choice)] if len(cloud) > choice else cloud
+
+    def normals(self) -> np.ndarray:
+        """[N, 3] unit normals of the model input points (``equipose.core.normals.point_normals``, ``NORMAL_NEIGHBOURS``
+        neighbours each; sign arbitrary), computed once: stages that read them share them."""
+        if self._normals is None:
+            self._normals = point_normals(self.points, NORMAL_NEIGHBOURS)
+        return self._normals
 
     def closure(self):
         """``equipose.core.opening.top_closure`` of the input points along the pose's category z through its centre

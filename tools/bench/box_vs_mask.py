@@ -2,13 +2,16 @@
 the pose the mask gives?
 
 Usage: python tools/bench/box_vs_mask.py [--models can-tabletop cup-tabletop bowl-tabletop] [--data DIR]
-    [--profile default] [--up none|plane] [--json FILE]
+    [--profile default] [--up none|plane] [--stages JSON] [--json FILE]
 For every labelled object (``label // 10``, labels ≥ 20) of every ``learn*.pcd``: ``predict(mask=its pixels)`` and
 ``predict(box=the mask's bounding box)`` with the same estimator; prints per model the angle between the two poses'
 axes (symmetry axis, or the rotation's z column), the distance between their centres, the share of objects whose box
 pose is > 10° or > 2 cm off the mask pose, and how many box crops reported something in front (``occlusion``).
 Angles in degrees (sign-folded: an axis and its negative are the same), distances in millimetres. ``--up``: the up
 prior of both predictions (default none, which compares the two crops alone; "plane": the frame's support plane).
+``--stages``: stage options for both (``PoseEstimator(stages=...)``, e.g. '{"axis_centre": false}'). The centre
+distance is also split into its part along the support plane's normal (the object's height; the plane of a mask
+prompt with ``up="plane"``) and across it.
 """
 from __future__ import annotations
 
@@ -68,12 +71,13 @@ def read_scenes(folder) -> dict:
 def main(argv=None) -> int:
     ap = scene_arguments(__doc__.splitlines()[0])
     ap.add_argument("--up", choices=("none", "plane"), default="none", help="the up prior of both predictions")
+    ap.add_argument("--stages", type=json.loads, default=None, help="stage options of both predictions, as JSON")
     a = ap.parse_args(argv)
     clouds = read_scenes(a.data)
     rows = []
     for model in a.models:
         try:
-            est = PoseEstimator(model, profile=a.profile)
+            est = PoseEstimator(model, profile=a.profile, stages=a.stages)
         except TypeError:                                                       # an SDK without profiles
             est = PoseEstimator(model)
         for name, cloud in clouds.items():
@@ -82,22 +86,28 @@ def main(argv=None) -> int:
                     up = None if a.up == "none" else a.up
                     rm = est.predict(cloud["depth"], cloud["K"], mask=mask, up=up)
                     rb = est.predict(cloud["depth"], cloud["K"], box=box, up=up)
+                    rp = rm if up == "plane" else est.predict(cloud["depth"], cloud["K"], mask=mask, up="plane")
                 except EquiposeError as e:
                     rows.append({"model": model, "scene": name, "object": oid, "error": type(e).__name__})
                     continue
                 c = float(np.clip(abs(_axis(rm) @ _axis(rb)), 0.0, 1.0))
+                d = rb.translation - rm.translation                                 # [3] m, camera frame
+                normal = rp.up if rp.up is not None else _axis(rm)                  # the support plane's normal
                 rows.append({"model": model, "scene": name, "object": oid, "axis_deg": float(np.degrees(np.arccos(c))),
-                             "centre_mm": float(np.linalg.norm(rm.translation - rb.translation) * 1e3),
+                             "centre_mm": float(np.linalg.norm(d) * 1e3),
+                             "height_mm": float(abs(d @ normal) * 1e3),
+                             "across_mm": float(np.linalg.norm(d - (d @ normal) * normal) * 1e3),
                              "occlusion": getattr(rb, "occlusion", None)})
-    print(f"{'model':16s} {'objects':>7s} {'axis° med':>9s} {'>10°':>6s} {'centre mm med':>13s} {'>2 cm':>6s} "
-          f"{'occluded':>8s} {'errors':>6s}")
+    print(f"{'model':16s} {'objects':>7s} {'axis° med':>9s} {'>10°':>6s} {'centre mm med':>13s} {'height':>6s} "
+          f"{'across':>6s} {'>2 cm':>6s} {'occluded':>8s} {'errors':>6s}")
     for model in a.models:
         ok = [r for r in rows if r["model"] == model and "axis_deg" in r]
         err = sum(1 for r in rows if r["model"] == model and "error" in r)
         ax, ce = np.array([r["axis_deg"] for r in ok]), np.array([r["centre_mm"] for r in ok])
         occ = sum(1 for r in ok if (r["occlusion"] or 0) > 0)
-        print(f"{model:16s} {len(ok):7d} {np.median(ax):9.2f} {np.mean(ax > 10):6.2f} {np.median(ce):13.1f} "
-              f"{np.mean(ce > 20):6.2f} {occ:8d} {err:6d}")
+        hi, ac = np.median([r["height_mm"] for r in ok]), np.median([r["across_mm"] for r in ok])
+        print(f"{model:16s} {len(ok):7d} {np.median(ax):9.2f} {np.mean(ax > 10):6.2f} {np.median(ce):13.1f} {hi:6.1f} "
+              f"{ac:6.1f} {np.mean(ce > 20):6.2f} {occ:8d} {err:6d}")
     if a.json:
         pathlib.Path(a.json).write_text(json.dumps(rows, indent=1))
     return 0

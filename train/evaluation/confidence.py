@@ -522,13 +522,16 @@ def main(argv=None) -> int:
                     help="render no open container upside down (the view set up to 0.40)")
     ap.add_argument("--check", action="store_true",
                     help="score the confidence the model file stores on these results instead of fitting a new one")
+    ap.add_argument("--stages", type=json.loads, default=None,
+                    help="stage options over the profile's, as JSON (PoseEstimator(stages=...)), e.g. "
+                         "'{\"axis_centre\": false}'")
     a = ap.parse_args(argv)
     from equipose import PoseEstimator
     if a.rows:
         rows = json.loads(pathlib.Path(a.rows).read_text())["rows"]
     else:
         from equipose.train.data.tabletop import TABLETOP
-        est = PoseEstimator(a.model)
+        est = PoseEstimator(a.model, stages=a.stages)
         rows = collect(est, a.views, a.seed, a.data_root, upside_down=False if a.standing_only else None) \
             if est.category in TABLETOP else \
             collect_modelnet(est, a.data_root, limit=a.limit)

@@ -20,13 +20,11 @@ import numpy as np
 
 from equipose.core.geometry import rotation_between
 from equipose.core.icp import icp_multi
-from equipose.core.normals import point_normals
 from equipose.runtime.cylinder import cylinder_axis, refine_side_axis
 from equipose.runtime.stage import ObjectState, Stage, register_stage
 
 __all__ = ["CylinderStage"]
 
-NORMAL_NEIGHBOURS = 12      # points per PCA normal
 UP_CONTRADICTION_RATIO = 0.95   # under an up prior: a far axis whose cost is below this × the prior's contradicts it
                                 # (rendered cans: 0.970 of lying ones flagged, 0.005 of standing ones)
 AXIS_RATIO_CLIP = 2.0       # result extra ``axis_ratio`` (evidence): saturates here
@@ -54,7 +52,7 @@ class CylinderStage(Stage):
         if state.up is not None and not self.unsigned:                          # the up prior fixes a cup's axis
             return
         a0 = state.rotation[:, 2]
-        normals = point_normals(state.points, NORMAL_NEIGHBOURS)                # [N, 3]
+        normals = state.normals()                                               # [N, 3]
         if state.up is not None:                    # the up prior fixes the axis unless the can clearly lies
             a, c0, c_far = cylinder_axis(state.points, a0, normals=normals, ratio=np.inf)   # the best far axis
             contradicted = bool(c_far < UP_CONTRADICTION_RATIO * c0)

@@ -23,7 +23,7 @@ __all__ = ["HandleStage"]
 class HandleStage(Stage):
     name = "handle"
     metadata_key = "handle"
-    after = "stand_upright"
+    after = "axis_centre"
 
     def __init__(self, direction):
         self.direction = np.asarray(direction, np.float64)                     # [3] category frame
