@@ -1,5 +1,5 @@
-"""Stage ``axis_centre`` (partial models of bodies of revolution: symmetry ``continuous:z`` or a ``handle``): the
-pose's symmetry axis moved, parallel to itself, to where the observed side normals meet it
+"""Stage ``axis_centre`` (metadata ``axis_centre``; partial models of bodies of revolution: symmetry ``continuous:z``
+or a ``handle``): the pose's symmetry axis moved, parallel to itself, to where the observed side normals meet it
 (``equipose.core.revolution.axis_line``).
 
 The network places the centre of a partial view from what it guesses of the unseen back; two crops of the same object
@@ -9,8 +9,13 @@ the axis is the network's. A fit that would move the axis by more than ``max_shi
 canonical shape's median distance from the axis), or that the normals do not settle, leaves the pose as it is.
 Result extra ``axis_shift_m``: how far the axis moved (metres; None where the stage left it).
 
-Options: ``points``: "input" (the model input, default), "cloud" or an int (``cloud_points_option``);
-``max_shift``: share of the body radius (default 1). Runs after ``stand_upright`` (the axis is final) and before
+The stage moves centres the model's confidence and centre calibrations were fitted without, so it runs where the
+file says so (``axis_centre`` metadata present, written once those calibrations are fitted with it; no shipped file
+holds it yet) or where asked: ``stages={"axis_centre": {"enabled": True}}``.
+
+Options: ``enabled``: "auto" (the file's ``axis_centre`` entry present), True or False; ``points``: "input" (the
+model input, default), "cloud" or an int (``cloud_points_option``); ``max_shift``: share of the body radius
+(default 1). Runs after ``stand_upright`` (the axis is final) and before
 ``handle``, whose body fit reads the axis at the pose's centre.
 
 Convention: model units, centred camera frame; the symmetry axis is the pose's +z column through its translation.
@@ -30,9 +35,9 @@ __all__ = ["AxisCentreStage"]
 @register_stage
 class AxisCentreStage(Stage):
     name = "axis_centre"
-    metadata_key = None
+    metadata_key = "axis_centre"
     after = "stand_upright"
-    options = {"points": "input", "max_shift": 1.0}
+    options = {"enabled": "auto", "points": "input", "max_shift": 1.0}
 
     def __init__(self, points="input", max_shift: float = 1.0):
         self.points = points
@@ -41,6 +46,13 @@ class AxisCentreStage(Stage):
     @classmethod
     def build(cls, spec, options, context):
         if not spec.partial or not (spec.symmetry == "continuous:z" or spec.get("handle") is not None):
+            return None
+        enabled = options["enabled"]
+        if isinstance(enabled, str) and enabled == "auto":
+            enabled = spec.get(cls.metadata_key) is not None
+        elif not isinstance(enabled, bool):
+            raise ConfigError(f"axis_centre enabled must be 'auto', True or False, got {enabled!r}")
+        if not enabled:
             return None
         shift = options["max_shift"]
         if isinstance(shift, bool) or not isinstance(shift, (int, float)) or not 0.0 < shift <= 2.0:
