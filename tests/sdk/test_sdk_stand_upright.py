@@ -94,4 +94,5 @@ def test_height_metadata_and_option():
 
 def test_place_in_the_pipeline():
     order = STAGE_ORDER
-    assert order.index("rest_side") + 1 == order.index("stand_upright") == order.index("handle") - 1
+    assert order.index("rest_side") + 1 == order.index("stand_upright") == order.index("axis_centre") - 1
+    assert order.index("axis_centre") + 1 == order.index("handle")          # the handle's body fit reads the axis
