@@ -18,7 +18,8 @@ import numpy as np
 
 __all__ = ["AxisLine", "axis_line", "SIDE_BAND", "MIN_SIDE_POINTS", "MIN_SPREAD"]
 
-SIDE_BAND = 0.5             # |n · a| below this: a side normal (within 30° of perpendicular to the axis)
+SIDE_BAND = 0.5             # |n · a| below this: a side normal (within 30° of perpendicular to the axis); the cylinder
+                            # stage's side normals too (``equipose.runtime.cylinder.refine_side_axis``)
 MIN_SIDE_POINTS = 24        # fewer side normals than this: no fit
 MIN_SPREAD = 0.05           # the side normals' smaller / larger in-plane spread below this (a narrow strip of the side,
                             # whose normals barely turn): the axis' distance along the normals is not settled, no fit
@@ -63,13 +64,14 @@ def axis_line(points, normals, axis, start, iters: int = 6, band: float = SIDE_B
     floor = SCALE_FLOOR * float(np.sqrt(np.mean(np.sum((p - c0) ** 2, axis=1))))
     x = np.zeros(2)                                                             # the axis point's offset in the plane
     w = np.ones(len(b))
+    A = U.T @ U                                                                 # [2, 2] the weighted normal matrix
     for _ in range(iters):
         r = U @ x - b                                                           # [S] each normal line's distance
         sigma = max(1.4826 * float(np.median(np.abs(r))), floor)
         w = 1.0 / (1.0 + (r / sigma) ** 2)                                      # [S] Cauchy
-        A = (U * w[:, None]).T @ U                                              # [2, 2]
-        x = np.linalg.solve(A + 1e-12 * np.eye(2), (U * w[:, None]).T @ b)
-    A = (U * w[:, None]).T @ U
+        Uw = U * w[:, None]                                                     # [S, 2]
+        A = Uw.T @ U
+        x = np.linalg.solve(A + 1e-12 * np.eye(2), Uw.T @ b)
     lo, hi = np.linalg.eigvalsh(A)
     spread = float(lo / hi) if hi > 0 else 0.0
     if spread < MIN_SPREAD:

@@ -14,6 +14,7 @@ from __future__ import annotations
 import numpy as np
 
 from equipose.core.normals import point_normals
+from equipose.core.revolution import SIDE_BAND
 
 __all__ = ["point_normals", "cylinder_axis", "refine_side_axis", "SIDE_BAND"]
 
@@ -48,7 +49,6 @@ def cylinder_axis(points, axis0, k: int = 12, normals=None, ratio: float = SWITC
     return (best if best @ a0 >= 0 else -best), c0, min(costs)
 
 
-SIDE_BAND = 0.5             # |n·a| below this: a side normal (within 30° of perpendicular to the axis)
 SIDE_MIN_POINTS = 20        # fewer side normals than this: the axis is left as it is
 
 

@@ -29,8 +29,8 @@ from equipose.core.normals import point_normals
 from equipose.core.opening import top_closure
 
 __all__ = ["Stage", "ObjectState", "register_stage", "unregister_stage", "registered_stages", "stage_metadata_keys",
-           "STAGE_ORDER", "TOP_PERCENTILE", "NORMAL_NEIGHBOURS", "cloud_points_option", "int_option", "MIN_FIT_POINTS", "ShareCapStage",
-           "parse_share_cap", "is_share"]
+           "STAGE_ORDER", "TOP_PERCENTILE", "NORMAL_NEIGHBOURS", "cloud_points_option", "int_option", "MIN_FIT_POINTS",
+           "ShareCapStage", "parse_share_cap", "is_share"]
 
 STAGE_ORDER: list = []          # stage names in run order (registration inserts each after its ``after``)
 NORMAL_NEIGHBOURS = 12          # ``ObjectState.normals``: points per PCA normal

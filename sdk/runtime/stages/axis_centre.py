@@ -15,8 +15,8 @@ holds it yet) or where asked: ``stages={"axis_centre": {"enabled": True}}``.
 
 Options: ``enabled``: "auto" (the file's ``axis_centre`` entry present), True or False; ``points``: "input" (the
 model input, default), "cloud" or an int (``cloud_points_option``); ``max_shift``: share of the body radius
-(default 1). Runs after ``stand_upright`` (the axis is final) and before
-``handle``, whose body fit reads the axis at the pose's centre.
+(default 1). Runs after ``stand_upright`` (the axis is final) and before ``handle``, whose body fit reads the axis at
+the pose's centre.
 
 Convention: model units, centred camera frame; the symmetry axis is the pose's +z column through its translation.
 """
