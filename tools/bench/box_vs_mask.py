@@ -9,9 +9,9 @@ axes (symmetry axis, or the rotation's z column), the distance between their cen
 pose is > 10° or > 2 cm off the mask pose, and how many box crops reported something in front (``occlusion``).
 Angles in degrees (sign-folded: an axis and its negative are the same), distances in millimetres. ``--up``: the up
 prior of both predictions (default none, which compares the two crops alone; "plane": the frame's support plane).
-``--stages``: stage options for both (``PoseEstimator(stages=...)``, e.g. '{"axis_centre": false}'). The centre
-distance is also split into its part along the support plane's normal (the object's height; the plane of a mask
-prompt with ``up="plane"``) and across it.
+``--stages``: stage options for both (``PoseEstimator(stages=...)``, e.g. '{"axis_centre": {"enabled": true}}').
+The centre distance is also split into its part along the support plane's normal (the object's height; the plane of
+a mask prompt with ``up="plane"``) and across it.
 """
 from __future__ import annotations
 

@@ -524,7 +524,7 @@ def main(argv=None) -> int:
                     help="score the confidence the model file stores on these results instead of fitting a new one")
     ap.add_argument("--stages", type=json.loads, default=None,
                     help="stage options over the profile's, as JSON (PoseEstimator(stages=...)), e.g. "
-                         "'{\"axis_centre\": false}'")
+                         "'{\"axis_centre\": {\"enabled\": true}}'")
     a = ap.parse_args(argv)
     from equipose import PoseEstimator
     if a.rows:
