@@ -18,8 +18,8 @@ import numpy as np
 
 __all__ = ["AxisLine", "axis_line", "SIDE_BAND", "MIN_SIDE_POINTS", "MIN_SPREAD"]
 
-SIDE_BAND = 0.5             # |n · a| below this: a side normal (within 30° of perpendicular to the axis); the cylinder
-                            # stage's side normals too (``equipose.runtime.cylinder.refine_side_axis``)
+SIDE_BAND = 0.5             # |n · a| below this: a side normal (within 30° of perpendicular to the axis); also the
+                            # cylinder stage's side normals (``equipose.runtime.cylinder.refine_side_axis``)
 MIN_SIDE_POINTS = 24        # fewer side normals than this: no fit
 MIN_SPREAD = 0.05           # the side normals' smaller / larger in-plane spread below this (a narrow strip of the side,
                             # whose normals barely turn): the axis' distance along the normals is not settled, no fit
