@@ -56,6 +56,8 @@ def test_recipe_is_valid_and_describes_the_shipped_file(name):
     assert (priors is not None) == (r.frame_priors is not None)
     if priors and r.frame_priors not in ("auto", "none"):
         assert [s.partition(":")[0] for s in r.frame_priors.split(",")] == priors["steps"]
+    axis = json.loads(meta.get("axis_centre") or "null")
+    assert axis == r.axis_centre
     risk = json.loads(meta.get("flip_risk") or "null")
     assert (risk is not None) == (r.flip_risk_views is not None)
     if risk:
@@ -86,6 +88,9 @@ def _write(tmp_path, text: str) -> pathlib.Path:
     ('[turn_classifier]\ncopy_from = "b.onnx"\nstudent_frac = 0.5\n', ["go with state"]),
     ('[eval]\nmode = "sideways"\n', ["[eval] mode", "'sideways'"]),
     ("[calibration\n", ["not valid TOML"]),
+    ("[axis_centre]\nmax_shift = 0\n", ["[axis_centre] max_shift", "(0, 2]"]),
+    ('[axis_centre]\npoints = "all"\n', ["[axis_centre] points", "'all'"]),
+    ("[axis_centre]\n", ["[axis_centre] is empty"]),
 ])
 def test_bad_recipes_fail_clearly(tmp_path, text, words):
     with pytest.raises(ConfigError) as e:
@@ -159,16 +164,34 @@ def test_the_upright_fit_runs_before_the_confidence_it_changes():
 
 
 def test_kept_confidence_weights_refresh_only_the_flags():
-    for name, keep in (("bowl-tabletop", True), ("mug-tabletop", True), ("cup-tabletop", False)):
+    for name, keep in (("bowl-tabletop", True), ("mug-tabletop", True), ("cup-tabletop", False),
+                       ("can-tabletop", False)):
         r = load_recipe(recipe_path(name))
         assert r.confidence_keep_weights is keep
         step = [s for s in plan(r, state="-", skip_eval=True) if "equipose.train.evaluation.confidence" in s.argv][0]
         assert ("--flags-only" in step.argv) is keep
+        assert step.argv[step.argv.index("--views") + 1] == str(r.confidence_views or 200)
         cal = json.loads(_metadata(name)["confidence_calibration"])
         assert ("flags_chosen_on" in cal) is keep and {"runner_up_margin", "closed_top_cap", "turned_top_cap",
                                                             "open_bottom_cap"} <= set(cal)
-        # the bowl's closed tops are turned over by its rest_side stage first, so no closed-top flag qualified for it
-        assert (cal["closed_top_cap"] > 0) is (name != "bowl-tabletop")
+        # the bowl's closed tops are turned over by its rest_side stage first, so no closed-top flag qualified for it;
+        # a can has no opening
+        assert (cal["closed_top_cap"] > 0) is (name in ("cup-tabletop", "mug-tabletop"))
+
+
+def test_the_axis_centre_entry_is_written_before_the_fits_that_see_it(tmp_path):
+    p = _write(tmp_path, "[axis_centre]\nmax_shift = 1\n[centre]\nviews = 3\n")
+    r = load_recipe(p)
+    assert r.axis_centre == {"points": "input", "max_shift": 1.0} and isinstance(r.axis_centre["max_shift"], float)
+    steps = plan(r, state="-", skip_eval=True)
+    for f in ("m", "m.int8"):
+        titles = [s.title for s in steps if s.title.startswith(f + ":") or s.title.startswith(f + " (")]
+        entry = [i for i, t in enumerate(titles) if "axis_centre" in t]
+        fits = [i for i, t in enumerate(titles) if "offset" in t or "confidence" in t]
+        assert len(entry) == 1 and all(entry[0] < i for i in fits)
+    p.write_text('category = "sofa"\nmode = "complete"\n[axis_centre]\npoints = "cloud"\n')
+    with pytest.raises(ConfigError, match="partial-view"):
+        load_recipe(p)
 
 
 def test_plan_without_state_and_without_evaluation(tmp_path):

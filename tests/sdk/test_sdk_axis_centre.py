@@ -96,8 +96,11 @@ def test_the_stage_runs_where_asked_for_partial_bodies_of_revolution_only():
     def names(model, **kw):
         return [s["stage"] for s in PoseEstimator(model, **kw).pipeline_info]
 
-    assert "axis_centre" not in names("can-tabletop")                          # no shipped file holds the entry yet
-    assert "axis_centre" in names("can-tabletop", stages=on) and "axis_centre" in names("mug-tabletop", stages=on)
+    for model in ("can-tabletop", "cup-tabletop", "bowl-tabletop", "mug-tabletop"):   # their files hold the entry
+        assert "axis_centre" in names(model)
+        assert "axis_centre" not in names(model, stages={"axis_centre": {"enabled": False}})
+    assert "axis_centre" not in names("bottle-partial")                        # no entry: off unless asked
+    assert "axis_centre" in names("bottle-partial", stages=on)
     assert names("mug-tabletop", stages=on).index("axis_centre") < names("mug-tabletop", stages=on).index("handle")
     assert "axis_centre" not in names("car-partial", stages=on)
     assert "axis_centre" not in names("bottle-complete", stages=on)
@@ -105,3 +108,33 @@ def test_the_stage_runs_where_asked_for_partial_bodies_of_revolution_only():
         PoseEstimator("can-tabletop", stages={"axis_centre": {"enabled": True, "max_shift": 0}})
     with pytest.raises(ConfigError, match="enabled"):
         PoseEstimator("can-tabletop", stages={"axis_centre": {"enabled": "yes"}})
+
+
+class _Spec:
+    """The parts of a ``ModelSpec`` the stage's ``build`` reads."""
+    name, partial, symmetry = "test.onnx", True, "continuous:z"
+
+    def __init__(self, entry=None):
+        self.entry = entry
+
+    def get(self, key):
+        return self.entry if key == "axis_centre" else None
+
+
+def _built(entry, **options):
+    return AxisCentreStage.build(_Spec(entry), {**AxisCentreStage.options, **options}, None)
+
+
+def test_the_files_entry_switches_the_stage_on_and_gives_its_options():
+    from equipose.core.errors import MetadataError
+    assert _built(None) is None                                                 # no entry: off
+    stage = _built('{"points": 300, "max_shift": 0.5}')
+    assert (stage.points, stage.max_shift) == (300, 0.5)
+    assert _built("{}").describe() == {"points": "input", "max_shift": 1.0}    # the entry's keys have defaults
+    assert _built('{"max_shift": 0.5}', max_shift=1.5, points="cloud").describe() == {"points": "cloud",
+                                                                                       "max_shift": 1.5}
+    assert _built('{"max_shift": 0.5}', enabled=False) is None
+    assert _built(None, enabled=True).describe() == {"points": "input", "max_shift": 1.0}
+    for bad in ('{"max_shift": 3}', '{"points": "all"}', "not json", '{"max_shift": true}'):
+        with pytest.raises(MetadataError, match="axis_centre"):
+            _built(bad)

@@ -31,6 +31,13 @@ which stages go into the file's metadata. Every key, its type, its default and i
     student_max_deg  float  with ``state``: own poses farther than this from every teacher turn are left out (45)
     rest_facet       float  complete clouds: rest-facet stage tolerance, degrees (default off)
     frame_priors     str    complete clouds: "auto" | "none" | steps such as "footprint,mirror:x" (default off)
+    [axis_centre]           partial bodies of revolution: the ``axis_centre`` stage, written before the centre and
+                            confidence fits (which then see its centres); absent: the stage stays off
+    points           str|int "input" | "cloud" | n points of the crop (default "input")
+    max_shift        float  the largest move of the axis, per body radius, in (0, 2] (default 1)
+    [confidence]            the calibrated confidence (``equipose.train.evaluation.confidence``)
+    keep_weights     bool   keep the file's weights and choose only its ambiguity flags again (default false)
+    views            int    tabletop models: rendered views of the fit (default 200)
     [eval]
     mode             str    the test set's input (default: ``mode``)
     icp_samples      int    test samples of the ICP-60 baseline in the same evaluation (default 100)
@@ -44,6 +51,7 @@ import pathlib
 
 from equipose.core.errors import ConfigError
 from equipose.core.metadata import FRAME_PRIOR_STEPS, MAX_COPIES, MAX_DENSIFY, MAX_POLISH
+from equipose.runtime.stage import MIN_FIT_POINTS
 
 __all__ = ["Recipe", "RECIPES_DIR", "REPO", "load_recipe", "recipe_path", "shipped_models"]
 
@@ -84,12 +92,23 @@ class Recipe:
     eval_icp_samples: int = 100
     centre_views: int | None = None
     confidence_keep_weights: bool = False
+    confidence_views: int | None = None
     rest_side_views: int | None = None
     rest_side_upright_views: int | None = None
     rest_side_upright_height_views: int | None = None
     flip_risk_views: int | None = None
     flip_risk_shapes: int | None = None
     flip_risk_flag_share: float = 0.3
+    axis_centre_points: str | int | None = None
+    axis_centre_max_shift: float | None = None
+
+    @property
+    def axis_centre(self) -> dict | None:
+        """The ``axis_centre`` metadata entry the recipe writes, or None."""
+        if self.axis_centre_points is None and self.axis_centre_max_shift is None:
+            return None
+        return {"points": "input" if self.axis_centre_points is None else self.axis_centre_points,
+                "max_shift": 1.0 if self.axis_centre_max_shift is None else self.axis_centre_max_shift}
 
 
 def _text(v):
@@ -100,12 +119,16 @@ def _int(lo, hi=None):
     return lambda v: isinstance(v, int) and not isinstance(v, bool) and v >= lo and (hi is None or v <= hi)
 
 
-def _float(lo, hi=None, open_lo=False):
+def _float(lo, hi=None, open_lo=False, closed_hi=False):
     def ok(v):
         if not isinstance(v, (int, float)) or isinstance(v, bool):
             return False
-        return (v > lo if open_lo else v >= lo) and (hi is None or v < hi)
+        return (v > lo if open_lo else v >= lo) and (hi is None or (v <= hi if closed_hi else v < hi))
     return ok
+
+
+def _points(v):
+    return v in ("input", "cloud") or (isinstance(v, int) and not isinstance(v, bool) and v >= MIN_FIT_POINTS)
 
 
 def _axes(v):
@@ -157,6 +180,7 @@ SCHEMA = {
     ("eval", "icp_samples"): ("eval_icp_samples", _int(1), "an integer ≥ 1"),
     ("centre", "views"): ("centre_views", _int(1), "rendered training views, an integer ≥ 1"),
     ("confidence", "keep_weights"): ("confidence_keep_weights", lambda v: isinstance(v, bool), "true or false"),
+    ("confidence", "views"): ("confidence_views", _int(1), "rendered tabletop views, an integer ≥ 1"),
     ("rest_side", "views"): ("rest_side_views", _int(1), "rendered views, an integer ≥ 1"),
     ("rest_side", "upright_views"): ("rest_side_upright_views", _int(1), "rendered views, an integer ≥ 1"),
     ("rest_side", "upright_height_views"): ("rest_side_upright_height_views", _int(1),
@@ -164,6 +188,9 @@ SCHEMA = {
     ("flip_risk", "views"): ("flip_risk_views", _int(1), "rendered views per training shape, an integer ≥ 1"),
     ("flip_risk", "shapes"): ("flip_risk_shapes", _int(1), "the first N training shapes, an integer ≥ 1"),
     ("flip_risk", "flag_share"): ("flip_risk_flag_share", _float(0, 1, open_lo=True), "a share in (0, 1)"),
+    ("axis_centre", "points"): ("axis_centre_points", _points, '"input", "cloud" or an integer ≥ 16'),
+    ("axis_centre", "max_shift"): ("axis_centre_max_shift", _float(0, 2, open_lo=True, closed_hi=True),
+                                   "a share of the body radius in (0, 2]"),
 }
 TABLES = sorted({t for t, _ in SCHEMA if t})
 
@@ -184,6 +211,8 @@ def _flatten(data: dict, source: str) -> dict:
         if isinstance(value, dict):
             if key not in TABLES:
                 raise ConfigError(f"{source}: unknown table [{key}]; known tables: {', '.join(TABLES)}")
+            if not value:
+                raise ConfigError(f"{source}: table [{key}] is empty; give its keys or leave the table out")
             items = [((key, k), v) for k, v in value.items()]
         else:
             items = [(("", key), value)]
@@ -200,6 +229,7 @@ def _check_combinations(r: Recipe, source: str) -> None:
     partial_only = {"[refine] visibility": r.refine_visibility is not None,
                     "[turn_classifier]": bool(r.turn_state or r.turn_copy_from),
                     "[centre]": r.centre_views is not None, "[flip_risk]": r.flip_risk_views is not None,
+                    "[axis_centre]": r.axis_centre is not None,
                     "[rest_side]": r.rest_side_views is not None or r.rest_side_upright_views is not None
                     or r.rest_side_upright_height_views is not None}
     complete_only = {"rest_facet": r.rest_facet is not None, "frame_priors": r.frame_priors is not None}

@@ -70,6 +70,11 @@ def _set_rest_facet(path: str, tolerance_deg: float) -> None:
     update_metadata(REPO / path, rest_facet={"tolerance_deg": float(tolerance_deg)})
 
 
+def _set_axis_centre(path: str, entry: dict) -> None:
+    from equipose.export.onnx_export import update_metadata
+    update_metadata(REPO / path, axis_centre=entry)
+
+
 def _file_steps(r: Recipe, f: str, views: int, skip_eval: bool) -> list:
     """The steps of one file (``f``: "MODEL" or "MODEL.int8")."""
     model, steps = f"{MODELS}/{f}.onnx", []
@@ -106,6 +111,10 @@ def _file_steps(r: Recipe, f: str, views: int, skip_eval: bool) -> list:
     if r.frame_priors is not None:
         steps.append(_python("equipose.export.frame_priors", "--model", model, "--category", r.category,
                              "--steps", r.frame_priors, title=f"{f}: frame priors ({r.frame_priors})"))
+    if r.axis_centre is not None:                   # before the centre and confidence fits: they see its centres
+        steps.append(Step(f"{f}: the axis_centre stage ({r.axis_centre})",
+                          (f"update_metadata({model}, axis_centre={r.axis_centre})",),
+                          call=lambda: _set_axis_centre(model, r.axis_centre)))
     if r.flip_risk_views and f == r.name:           # before the confidence fit: its flag is what the confidence reads
         shapes = [] if r.flip_risk_shapes is None else ["--shapes", r.flip_risk_shapes]
         steps.append(_python("equipose.train.evaluation.flip_risk", "--model", model, "--views", r.flip_risk_views,
@@ -127,7 +136,8 @@ def _file_steps(r: Recipe, f: str, views: int, skip_eval: bool) -> list:
                              title=f"{f} (and its int8 copy): the centre height of a pose stood upright"))
     if f == r.name:                                                            # also written into the int8 file
         keep = ["--flags-only"] if r.confidence_keep_weights else []
-        steps.append(_python("equipose.train.evaluation.confidence", "--model", model, "--views", CONFIDENCE_VIEWS,
+        views = CONFIDENCE_VIEWS if r.confidence_views is None else r.confidence_views
+        steps.append(_python("equipose.train.evaluation.confidence", "--model", model, "--views", views,
                              "--write", *keep, title=f"{f} (and its int8 copy): calibrated confidence"
                              + (" (its weights kept, its flags chosen again)" if keep else "")))
     if not skip_eval:
