@@ -160,9 +160,9 @@ def test_a_closed_posed_top_flags_the_result_ambiguous():
 def test_the_closed_top_share_is_fitted_where_closed_tops_are_mostly_wrong():
     from equipose.train.evaluation.confidence import CLOSED_TOP_WRONG, closed_top_cap, flag_rows
     rows = [{"top_cap": 0.0, "margin": 0.5, "right": i % 3 > 0} for i in range(60)]
-    rows += [{"top_cap": 0.06, "margin": 0.5, "right": i % 2 == 0} for i in range(10)]   # half wrong: not enough
+    rows += [{"top_cap": 0.06, "margin": 0.5, "right": True} for i in range(10)]        # with them, 45 % wrong
     rows += [{"top_cap": 0.13, "margin": 0.5, "right": i % 10 == 0} for i in range(10)]  # 90 % wrong
-    assert CLOSED_TOP_WRONG == 0.9 and closed_top_cap(rows) == 0.08            # the lowest candidate with ≥ 0.9 wrong
+    assert CLOSED_TOP_WRONG == 0.5 and closed_top_cap(rows) == 0.08            # the lowest candidate with ≥ 0.5 wrong
     assert closed_top_cap([{**r, "right": True} for r in rows]) == 0.0
     assert closed_top_cap([{"margin": 0.5, "right": False}] * 10) == 0.0       # rows without the evidence
     flagged = flag_rows(rows, {"closed_top_cap": 0.08, "runner_up_margin": 0.0})

@@ -352,7 +352,9 @@ def runner_up_margin(rows: list) -> float:
 
 
 CLOSED_TOP_CANDIDATES = (0.05, 0.08, 0.1, 0.12, 0.15, 0.2)   # top_cap thresholds tried, lowest first
-CLOSED_TOP_WRONG = 0.9                                     # ... the share of wrong results needed at or above one
+CLOSED_TOP_WRONG = 0.5                                     # ... the share of wrong results needed at or above one:
+                                                           # more often wrong than right (as turned_top_cap)
+OPEN_BOTTOM_WRONG = 0.9                                    # the same for open_bottom_cap
 
 
 def closed_top_cap(rows: list) -> float:
@@ -382,12 +384,12 @@ OPEN_BOTTOM_CANDIDATES = (0.12, 0.1, 0.08, 0.05, 0.03, 0.02)   # bottom_cap thre
 
 def open_bottom_cap(rows: list) -> float:
     """The highest ``bottom_cap`` below which the results posed on their opening on the support plane
-    (``plane_tilt`` > 0.5) are wrong at least ``CLOSED_TOP_WRONG`` of the time (at least ``RUNNER_UP_MIN_RESULTS`` of
+    (``plane_tilt`` > 0.5) are wrong at least ``OPEN_BOTTOM_WRONG`` of the time (at least ``RUNNER_UP_MIN_RESULTS`` of
     them), else 0: the end facing up reads open, so the object may stand the other way up, and the confidence stage
     flags such results ``ambiguous`` (``open_bottom_up``). Rows need "plane_tilt", "bottom_cap" and "right"."""
     rows = [r for r in rows if r.get("plane_tilt", 0.0) > 0.5 and "bottom_cap" in r]
     return first_flagging([r["bottom_cap"] for r in rows], rows, OPEN_BOTTOM_CANDIDATES, lambda v, t: v < t,
-                          CLOSED_TOP_WRONG)
+                          OPEN_BOTTOM_WRONG)
 
 
 def flag_rows(rows: list, calibration: dict) -> list:
