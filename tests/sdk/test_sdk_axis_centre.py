@@ -135,6 +135,6 @@ def test_the_files_entry_switches_the_stage_on_and_gives_its_options():
                                                                                        "max_shift": 1.5}
     assert _built('{"max_shift": 0.5}', enabled=False) is None
     assert _built(None, enabled=True).describe() == {"points": "input", "max_shift": 1.0}
-    for bad in ('{"max_shift": 3}', '{"points": "all"}', "not json", '{"max_shift": true}'):
+    for bad in ('{"max_shift": 3}', '{"points": "all"}', "not json", '{"max_shift": true}', "[1]"):
         with pytest.raises(MetadataError, match="axis_centre"):
             _built(bad)

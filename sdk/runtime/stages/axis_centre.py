@@ -105,7 +105,7 @@ def parse_axis_centre(text, source: str = "model") -> dict | None:
         shift = d.get("max_shift", DEFAULT_MAX_SHIFT)
         if not _share(shift):
             raise ValueError(f"max_shift must be a share of the body radius in (0, 2], got {shift!r}")
-    except (ValueError, TypeError) as e:                                       # ConfigError is a ValueError
+    except (ValueError, TypeError, AttributeError) as e:                       # ConfigError is a ValueError
         raise MetadataError(f"{source}: malformed axis_centre metadata ({e}); write it again with the release "
                             "recipe's [axis_centre] table") from None
     return {"points": points, "max_shift": float(shift)}
