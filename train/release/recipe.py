@@ -51,7 +51,8 @@ import pathlib
 
 from equipose.core.errors import ConfigError
 from equipose.core.metadata import FRAME_PRIOR_STEPS, MAX_COPIES, MAX_DENSIFY, MAX_POLISH
-from equipose.runtime.stage import MIN_FIT_POINTS
+from equipose.runtime.stage import MIN_FIT_POINTS, cloud_points_option
+from equipose.runtime.stages.axis_centre import parse_axis_centre
 
 __all__ = ["Recipe", "RECIPES_DIR", "REPO", "load_recipe", "recipe_path", "shipped_models"]
 
@@ -104,11 +105,11 @@ class Recipe:
 
     @property
     def axis_centre(self) -> dict | None:
-        """The ``axis_centre`` metadata entry the recipe writes, or None."""
-        if self.axis_centre_points is None and self.axis_centre_max_shift is None:
-            return None
-        return {"points": "input" if self.axis_centre_points is None else self.axis_centre_points,
-                "max_shift": 1.0 if self.axis_centre_max_shift is None else self.axis_centre_max_shift}
+        """The ``axis_centre`` metadata entry the recipe writes (the stage's defaults for keys it leaves out), or
+        None."""
+        given = {k: v for k, v in (("points", self.axis_centre_points), ("max_shift", self.axis_centre_max_shift))
+                 if v is not None}
+        return parse_axis_centre(given, self.source) if given else None
 
 
 def _text(v):
@@ -128,7 +129,11 @@ def _float(lo, hi=None, open_lo=False, closed_hi=False):
 
 
 def _points(v):
-    return v in ("input", "cloud") or (isinstance(v, int) and not isinstance(v, bool) and v >= MIN_FIT_POINTS)
+    try:
+        cloud_points_option("axis_centre", v)
+    except ConfigError:
+        return False
+    return True
 
 
 def _axes(v):
@@ -188,7 +193,7 @@ SCHEMA = {
     ("flip_risk", "views"): ("flip_risk_views", _int(1), "rendered views per training shape, an integer ≥ 1"),
     ("flip_risk", "shapes"): ("flip_risk_shapes", _int(1), "the first N training shapes, an integer ≥ 1"),
     ("flip_risk", "flag_share"): ("flip_risk_flag_share", _float(0, 1, open_lo=True), "a share in (0, 1)"),
-    ("axis_centre", "points"): ("axis_centre_points", _points, '"input", "cloud" or an integer ≥ 16'),
+    ("axis_centre", "points"): ("axis_centre_points", _points, f'"input", "cloud" or an integer ≥ {MIN_FIT_POINTS}'),
     ("axis_centre", "max_shift"): ("axis_centre_max_shift", _float(0, 2, open_lo=True, closed_hi=True),
                                    "a share of the body radius in (0, 2]"),
 }

@@ -65,14 +65,9 @@ def _views(state: str | None) -> int:
     return int(json.loads(cfg.read_text()).get("views", 10))
 
 
-def _set_rest_facet(path: str, tolerance_deg: float) -> None:
+def _set_metadata(path: str, **entries) -> None:
     from equipose.export.onnx_export import update_metadata
-    update_metadata(REPO / path, rest_facet={"tolerance_deg": float(tolerance_deg)})
-
-
-def _set_axis_centre(path: str, entry: dict) -> None:
-    from equipose.export.onnx_export import update_metadata
-    update_metadata(REPO / path, axis_centre=entry)
+    update_metadata(REPO / path, **entries)
 
 
 def _file_steps(r: Recipe, f: str, views: int, skip_eval: bool) -> list:
@@ -91,7 +86,7 @@ def _file_steps(r: Recipe, f: str, views: int, skip_eval: bool) -> list:
     if r.rest_facet is not None:
         steps.append(Step(f"{f}: rest facet, {r.rest_facet:g}° tolerance",
                           (f"update_metadata({model}, rest_facet={{'tolerance_deg': {float(r.rest_facet)}}})",),
-                          call=lambda: _set_rest_facet(model, r.rest_facet)))
+                          call=lambda: _set_metadata(model, rest_facet={"tolerance_deg": float(r.rest_facet)})))
     if r.flip_teacher:
         steps.append(_python("equipose.export.flip_templates", "--model", model, "--teacher", r.flip_teacher,
                              "--category", r.category, "--axes", r.flip_axes, "--pool", r.flip_pool,
@@ -114,7 +109,7 @@ def _file_steps(r: Recipe, f: str, views: int, skip_eval: bool) -> list:
     if r.axis_centre is not None:                   # before the centre and confidence fits: they see its centres
         steps.append(Step(f"{f}: the axis_centre stage ({r.axis_centre})",
                           (f"update_metadata({model}, axis_centre={r.axis_centre})",),
-                          call=lambda: _set_axis_centre(model, r.axis_centre)))
+                          call=lambda: _set_metadata(model, axis_centre=r.axis_centre)))
     if r.flip_risk_views and f == r.name:           # before the confidence fit: its flag is what the confidence reads
         shapes = [] if r.flip_risk_shapes is None else ["--shapes", r.flip_risk_shapes]
         steps.append(_python("equipose.train.evaluation.flip_risk", "--model", model, "--views", r.flip_risk_views,
