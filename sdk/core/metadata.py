@@ -68,7 +68,7 @@ FRAME_PRIOR_STEPS = ("rest", "mirror", "footprint")       # equipose.runtime.fra
 CONFIDENCE_FEATURES = ("margin", "flip_margin", "residual", "outliers", "coverage", "occlusion", "log_points",
                        "ambiguous", "up_given", "handle_seen", "handle_share", "plane_tilt",
                        "handle_fit_share", "handle_fit_mass", "plane_float", "plane_sink", "plane_rest",
-                       "axis_ratio", "top_cap", "bottom_cap", "top_taper", "own_axis_turn")
+                       "axis_ratio", "top_cap", "bottom_cap", "top_taper", "own_axis_turn", "plane_lying")
                                                            # equipose.runtime.stages.confidence
 MAX_COPIES = 64                                            # refine_calibration copies; equipose.runtime.copies
 MAX_POLISH = 200                                           # refine_calibration polish; equipose.runtime.refine

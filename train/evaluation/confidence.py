@@ -354,7 +354,7 @@ def runner_up_margin(rows: list) -> float:
 CLOSED_TOP_CANDIDATES = (0.05, 0.08, 0.1, 0.12, 0.15, 0.2)   # top_cap thresholds tried, lowest first
 CLOSED_TOP_WRONG = 0.5                                     # ... the share of wrong results needed at or above one:
                                                            # more often wrong than right (as turned_top_cap)
-OPEN_BOTTOM_WRONG = 0.9                                    # the same for open_bottom_cap
+OPEN_BOTTOM_WRONG = 0.5                                    # the same for open_bottom_cap
 
 
 def closed_top_cap(rows: list) -> float:

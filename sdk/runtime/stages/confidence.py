@@ -22,6 +22,8 @@ of the object was seen —
   a table touches it;
 - ``plane_rest``: |sin 2θ| for the same angle θ: 0 where the pose rests on the plane upright, lying on its side or
   upside down, 1 halfway between (45°, 135°), where nothing stands by itself (0 without a plane);
+- ``plane_lying``: sin² θ for the same angle θ: 1 where the pose lies on its side on the plane, 0 upright or upside
+  down (0 without a plane): a can lies on a table as often as it stands, a bowl never does;
 - ``axis_ratio``: cans under an up prior: the cylinder stage's cost of the best other axis over the pose's axis
   (near 1: the normals barely decide between standing and lying); ``AXIS_RATIO_CLIP`` where the stage did not run;
 - ``top_cap``, ``bottom_cap``, ``top_taper``: whether the end the pose calls its top (category +z) looks open or
@@ -36,18 +38,18 @@ of the object was seen —
 
 Before the evidence is read, a result whose selection margin is below the calibration's ``runner_up_margin`` is
 flagged ``ambiguous``: a pose more than 30° away explains the points about as well, and on the fitting views such
-results were wrong at least half the time (``equipose.train.evaluation.confidence.runner_up_margin``; the shipped
-cup, bowl and mug files hold 0.05, can 0.03; absent: no such flag). Likewise a result whose ``top_cap`` reaches the
+results were wrong at least half the time (``equipose.train.evaluation.confidence.runner_up_margin``; absent or 0:
+no such flag). Likewise a result whose ``top_cap`` reaches the
 calibration's ``closed_top_cap``: the posed top shows a closed bottom, so the object may stand the other way up, and
-on the fitting views at least 90 % of such results were wrong (``equipose.train.evaluation.confidence.closed_top_cap``;
-the shipped mug file holds 0.12, cup 0.2; absent or 0: no such flag). Under an up prior, a result whose
+on the fitting views at least half of such results were wrong (``equipose.train.evaluation.confidence.closed_top_cap``;
+absent or 0: no such flag). Under an up prior, a result whose
 ``own_axis_turn`` exceeds ``TURNED`` (the network had the object the other way up) and whose ``top_cap`` reaches the
 calibration's ``turned_top_cap`` is flagged too: at least half of such results on the fitting views were wrong
-(``equipose.train.evaluation.confidence.turned_top_cap``; the shipped cup file holds 0.02, mug 0.1). The mirror case:
-a pose that stands the object on its opening on the support plane (``plane_tilt`` > 0.5) while the end it calls the
-bottom, facing up, reads open (``bottom_cap`` below the calibration's ``open_bottom_cap``) is flagged as well; at
-least 90 % of such fitting results were wrong (``equipose.train.evaluation.confidence.open_bottom_cap``; the
-shipped cup and mug files hold 0.12).
+(``equipose.train.evaluation.confidence.turned_top_cap``). The mirror case: a pose that stands the object on its
+opening on the support plane (``plane_tilt`` > 0.5) while the end it calls the bottom, facing up, reads open
+(``bottom_cap`` below the calibration's ``open_bottom_cap``) is flagged as well, where at least half of such fitting
+results were wrong (``equipose.train.evaluation.confidence.open_bottom_cap``). Each file's thresholds are in its
+``confidence_calibration`` (``PoseEstimator(M).metadata``).
 
 With ``confidence_calibration`` in the model file, ``confidence`` = σ(bias + Σ weight·feature): the estimated chance
 that the rotation is within 10° of the truth (modulo the symmetry) and the centre within 2 cm, fitted on rendered
@@ -146,6 +148,7 @@ def evidence(state: ObjectState) -> dict:
         "handle_fit_mass": fit[1] if fit else 0.0,
         "plane_tilt": 0.0 if cos_up is None else float(np.clip(0.5 * (1.0 - cos_up), 0.0, 1.0)),
         "plane_rest": 0.0 if cos_up is None else float(abs(2.0 * cos_up * math.sqrt(max(0.0, 1.0 - cos_up ** 2)))),
+        "plane_lying": 0.0 if cos_up is None else float(max(0.0, 1.0 - cos_up ** 2)),
         "plane_float": float(np.clip(gap, 0.0, CONTACT_CLIP)),
         "plane_sink": float(np.clip(-gap, 0.0, CONTACT_CLIP)),
         "axis_ratio": float(state.extras.get("axis_ratio", AXIS_RATIO_CLIP)),
