@@ -41,14 +41,19 @@ def test_plane_tilt_reads_the_pose_against_the_support_plane():
     R, t = Rotation.from_euler("xyz", [10, -25, 40], degrees=True).as_matrix(), np.zeros(3)
     canon = _cloud(seed=2)
     x = canon @ R.T + t
-    assert evidence(posed_state(x, R, t, canonical=canon))["plane_tilt"] == 0.0        # no plane: no evidence
-    tilts = []
-    for angle in (0.0, 90.0, 180.0):                                           # the plane's normal vs the pose's z
+    none = evidence(posed_state(x, R, t, canonical=canon))
+    assert none["plane_tilt"] == 0.0 and none["plane_lying"] == 0.0                    # no plane: no evidence
+    readings = []
+    for angle in (0.0, 45.0, 90.0, 180.0):                                     # the plane's normal vs the pose's z
         turn = Rotation.from_rotvec(np.radians(angle) * R[:, 0]).as_matrix()
         state = posed_state(x, R, t, canonical=canon)
         state.support_up = turn @ R[:, 2]
-        tilts.append(evidence(state)["plane_tilt"])
-    assert tilts == pytest.approx([0.0, 0.5, 1.0], abs=1e-9)
+        ev = evidence(state)
+        readings.append((ev["plane_tilt"], ev["plane_lying"], ev["plane_rest"]))
+    tilt, lying, rest = np.array(readings).T
+    assert tilt == pytest.approx([0.0, (1 - math.sqrt(0.5)) / 2, 0.5, 1.0], abs=1e-9)
+    assert lying == pytest.approx([0.0, 0.5, 1.0, 0.0], abs=1e-9)             # sin²: 1 only on its side
+    assert rest == pytest.approx([0.0, 1.0, 0.0, 0.0], abs=1e-6)              # |sin 2θ|: 0 on its side too
 
 
 def test_plane_contact_reads_how_far_the_posed_shape_floats_above_or_sinks_into_the_plane():
