@@ -38,14 +38,13 @@ of the object was seen —
 
 Before the evidence is read, a result whose selection margin is below the calibration's ``runner_up_margin`` is
 flagged ``ambiguous``: a pose more than 30° away explains the points about as well, and on the fitting views such
-results were wrong at least half the time (``equipose.train.evaluation.confidence.runner_up_margin``; absent or 0:
-no such flag). Likewise a result whose ``top_cap`` reaches the
-calibration's ``closed_top_cap``: the posed top shows a closed bottom, so the object may stand the other way up, and
-on the fitting views at least half of such results were wrong (``equipose.train.evaluation.confidence.closed_top_cap``;
-absent or 0: no such flag). Under an up prior, a result whose
-``own_axis_turn`` exceeds ``TURNED`` (the network had the object the other way up) and whose ``top_cap`` reaches the
-calibration's ``turned_top_cap`` is flagged too: at least half of such results on the fitting views were wrong
-(``equipose.train.evaluation.confidence.turned_top_cap``). The mirror case: a pose that stands the object on its
+results were wrong at least half the time (``equipose.train.evaluation.confidence.runner_up_margin``; absent or 0: no
+such flag). Likewise a result whose ``top_cap`` reaches the calibration's ``closed_top_cap``: the posed top shows a
+closed bottom, so the object may stand the other way up, and on the fitting views at least half of such results were
+wrong (``equipose.train.evaluation.confidence.closed_top_cap``; absent or 0: no such flag). Under an up prior, a
+result whose ``own_axis_turn`` exceeds ``TURNED`` (the network had the object the other way up) and whose ``top_cap``
+reaches the calibration's ``turned_top_cap`` is flagged too: at least half of such results on the fitting views were
+wrong (``equipose.train.evaluation.confidence.turned_top_cap``). The mirror case: a pose that stands the object on its
 opening on the support plane (``plane_tilt`` > 0.5) while the end it calls the bottom, facing up, reads open
 (``bottom_cap`` below the calibration's ``open_bottom_cap``) is flagged as well, where at least half of such fitting
 results were wrong (``equipose.train.evaluation.confidence.open_bottom_cap``). Each file's thresholds are in its
