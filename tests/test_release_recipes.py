@@ -58,6 +58,7 @@ def test_recipe_is_valid_and_describes_the_shipped_file(name):
         assert [s.partition(":")[0] for s in r.frame_priors.split(",")] == priors["steps"]
     axis = json.loads(meta.get("axis_centre") or "null")
     assert axis == r.axis_centre
+    assert json.loads(meta.get("rim_axis") or "null") == r.rim_axis
     risk = json.loads(meta.get("flip_risk") or "null")
     assert (risk is not None) == (r.flip_risk_views is not None)
     if risk:
@@ -91,6 +92,8 @@ def _write(tmp_path, text: str) -> pathlib.Path:
     ("[axis_centre]\nmax_shift = 0\n", ["[axis_centre] max_shift", "(0, 2]"]),
     ('[axis_centre]\npoints = "all"\n', ["[axis_centre] points", "'all'"]),
     ("[axis_centre]\n", ["[axis_centre] is empty"]),
+    ("[rim_axis]\nband = 1\n", ["[rim_axis] band", "(0, 1)"]),
+    ("[rim_axis]\nmax_turn = 91\n", ["[rim_axis] max_turn", "(0, 90]"]),
 ])
 def test_bad_recipes_fail_clearly(tmp_path, text, words):
     with pytest.raises(ConfigError) as e:
@@ -179,17 +182,21 @@ def test_kept_confidence_weights_refresh_only_the_flags():
         assert (cal["closed_top_cap"] > 0) is (name in ("cup-tabletop", "mug-tabletop"))
 
 
-def test_the_axis_centre_entry_is_written_before_the_fits_that_see_it(tmp_path):
-    p = _write(tmp_path, "[axis_centre]\nmax_shift = 1\n[centre]\nviews = 3\n")
+@pytest.mark.parametrize("table, key, entry", [
+    ("axis_centre", "max_shift = 1", {"points": "input", "max_shift": 1.0}),
+    ("rim_axis", "band = 0.25", {"band": 0.25, "max_turn": 30.0, "points": "cloud"}),
+])
+def test_a_stage_entry_is_written_before_the_fits_that_see_it(tmp_path, table, key, entry):
+    p = _write(tmp_path, f"[{table}]\n{key}\n[centre]\nviews = 3\n")
     r = load_recipe(p)
-    assert r.axis_centre == {"points": "input", "max_shift": 1.0} and isinstance(r.axis_centre["max_shift"], float)
+    assert getattr(r, table) == entry and all(isinstance(v, float) for v in entry.values() if not isinstance(v, str))
     steps = plan(r, state="-", skip_eval=True)
     for f in ("m", "m.int8"):
         titles = [s.title for s in steps if s.title.startswith(f + ":") or s.title.startswith(f + " (")]
-        entry = [i for i, t in enumerate(titles) if "axis_centre" in t]
+        written = [i for i, t in enumerate(titles) if f"the {table} stage" in t]
         fits = [i for i, t in enumerate(titles) if "offset" in t or "confidence" in t]
-        assert len(entry) == 1 and all(entry[0] < i for i in fits)
-    p.write_text('category = "sofa"\nmode = "complete"\n[axis_centre]\npoints = "cloud"\n')
+        assert len(written) == 1 and all(written[0] < i for i in fits)
+    p.write_text(f'category = "sofa"\nmode = "complete"\n[{table}]\npoints = "cloud"\n')
     with pytest.raises(ConfigError, match="partial-view"):
         load_recipe(p)
 

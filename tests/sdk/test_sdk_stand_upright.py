@@ -94,5 +94,6 @@ def test_height_metadata_and_option():
 
 def test_place_in_the_pipeline():
     order = STAGE_ORDER
-    assert order.index("rest_side") + 1 == order.index("stand_upright") == order.index("axis_centre") - 1
+    assert order.index("rest_side") + 1 == order.index("stand_upright") == order.index("rim_axis") - 1
+    assert order.index("rim_axis") + 1 == order.index("axis_centre")         # the axis direction, then its line
     assert order.index("axis_centre") + 1 == order.index("handle")          # the handle's body fit reads the axis

@@ -35,6 +35,11 @@ which stages go into the file's metadata. Every key, its type, its default and i
                             confidence fits (which then see its centres); absent: the stage stays off
     points           str|int "input" | "cloud" | n points of the crop (default "input")
     max_shift        float  the largest move of the axis, per body radius, in (0, 2] (default 1)
+    [rim_axis]              partial open containers (symmetry ``continuous:z``): the ``rim_axis`` stage, written
+                            with ``[axis_centre]`` before the centre and confidence fits; absent: the stage stays off
+    band             float  the top share of the extent along the axis that fits the rim plane, in (0, 1) (0.3)
+    max_turn         float  the largest turn of the axis, degrees, in (0, 90] (default 30)
+    points           str|int "input" | "cloud" | n points of the crop (default "cloud")
     [confidence]            the calibrated confidence (``equipose.train.evaluation.confidence``)
     keep_weights     bool   keep the file's weights and choose only its ambiguity flags again (default false)
     views            int    tabletop models: rendered views of the fit (default 200)
@@ -53,6 +58,7 @@ from equipose.core.errors import ConfigError
 from equipose.core.metadata import FRAME_PRIOR_STEPS, MAX_COPIES, MAX_DENSIFY, MAX_POLISH
 from equipose.runtime.stage import MIN_FIT_POINTS, cloud_points_option
 from equipose.runtime.stages.axis_centre import parse_axis_centre
+from equipose.runtime.stages.rim_axis import parse_rim_axis
 
 __all__ = ["Recipe", "RECIPES_DIR", "REPO", "load_recipe", "recipe_path", "shipped_models"]
 
@@ -102,6 +108,9 @@ class Recipe:
     flip_risk_flag_share: float = 0.3
     axis_centre_points: str | int | None = None
     axis_centre_max_shift: float | None = None
+    rim_axis_band: float | None = None
+    rim_axis_max_turn: float | None = None
+    rim_axis_points: str | int | None = None
 
     @property
     def axis_centre(self) -> dict | None:
@@ -110,6 +119,13 @@ class Recipe:
         given = {k: v for k, v in (("points", self.axis_centre_points), ("max_shift", self.axis_centre_max_shift))
                  if v is not None}
         return parse_axis_centre(given, self.source) if given else None
+
+    @property
+    def rim_axis(self) -> dict | None:
+        """The ``rim_axis`` metadata entry the recipe writes (the stage's defaults for keys it leaves out), or None."""
+        given = {k: v for k, v in (("band", self.rim_axis_band), ("max_turn", self.rim_axis_max_turn),
+                                   ("points", self.rim_axis_points)) if v is not None}
+        return parse_rim_axis(given, self.source) if given else None
 
 
 def _text(v):
@@ -196,6 +212,10 @@ SCHEMA = {
     ("axis_centre", "points"): ("axis_centre_points", _points, f'"input", "cloud" or an integer ≥ {MIN_FIT_POINTS}'),
     ("axis_centre", "max_shift"): ("axis_centre_max_shift", _float(0, 2, open_lo=True, closed_hi=True),
                                    "a share of the body radius in (0, 2]"),
+    ("rim_axis", "band"): ("rim_axis_band", _float(0, 1, open_lo=True), "a share in (0, 1)"),
+    ("rim_axis", "max_turn"): ("rim_axis_max_turn", _float(0, 90, open_lo=True, closed_hi=True),
+                               "degrees in (0, 90]"),
+    ("rim_axis", "points"): ("rim_axis_points", _points, f'"input", "cloud" or an integer ≥ {MIN_FIT_POINTS}'),
 }
 TABLES = sorted({t for t, _ in SCHEMA if t})
 
@@ -234,7 +254,7 @@ def _check_combinations(r: Recipe, source: str) -> None:
     partial_only = {"[refine] visibility": r.refine_visibility is not None,
                     "[turn_classifier]": bool(r.turn_state or r.turn_copy_from),
                     "[centre]": r.centre_views is not None, "[flip_risk]": r.flip_risk_views is not None,
-                    "[axis_centre]": r.axis_centre is not None,
+                    "[axis_centre]": r.axis_centre is not None, "[rim_axis]": r.rim_axis is not None,
                     "[rest_side]": r.rest_side_views is not None or r.rest_side_upright_views is not None
                     or r.rest_side_upright_height_views is not None}
     complete_only = {"rest_facet": r.rest_facet is not None, "frame_priors": r.frame_priors is not None}

@@ -106,6 +106,10 @@ def _file_steps(r: Recipe, f: str, views: int, skip_eval: bool) -> list:
     if r.frame_priors is not None:
         steps.append(_python("equipose.export.frame_priors", "--model", model, "--category", r.category,
                              "--steps", r.frame_priors, title=f"{f}: frame priors ({r.frame_priors})"))
+    if r.rim_axis is not None:                      # before the centre and confidence fits: they see its axes
+        steps.append(Step(f"{f}: the rim_axis stage ({r.rim_axis})",
+                          (f"update_metadata({model}, rim_axis={r.rim_axis})",),
+                          call=lambda: _set_metadata(model, rim_axis=r.rim_axis)))
     if r.axis_centre is not None:                   # before the centre and confidence fits: they see its centres
         steps.append(Step(f"{f}: the axis_centre stage ({r.axis_centre})",
                           (f"update_metadata({model}, axis_centre={r.axis_centre})",),

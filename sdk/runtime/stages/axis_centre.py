@@ -16,8 +16,8 @@ file says so (metadata ``axis_centre`` JSON {"points": ..., "max_shift": ...}, w
 
 Options: ``enabled``: "auto" (the file's ``axis_centre`` entry present), True or False; ``points``: "auto" (the
 file's, else "input"), "input" (the model input), "cloud" or an int (``cloud_points_option``); ``max_shift``: "auto"
-(the file's, else 1) or a share of the body radius in (0, 2]. Runs after ``stand_upright`` (the axis is final) and
-before ``handle``, whose body fit reads the axis at the pose's centre.
+(the file's, else 1) or a share of the body radius in (0, 2]. Runs after ``stand_upright`` and ``rim_axis`` (the axis
+direction is final) and before ``handle``, whose body fit reads the axis at the pose's centre.
 
 Convention: model units, centred camera frame; the symmetry axis is the pose's +z column through its translation.
 """
@@ -42,7 +42,7 @@ DEFAULT_MAX_SHIFT = 1.0         # the largest move, per body radius
 class AxisCentreStage(Stage):
     name = "axis_centre"
     metadata_key = "axis_centre"
-    after = "stand_upright"
+    after = "rim_axis"
     options = {"enabled": "auto", "points": "auto", "max_shift": "auto"}
 
     def __init__(self, points=DEFAULT_POINTS, max_shift: float = DEFAULT_MAX_SHIFT):
