@@ -29,7 +29,8 @@ from equipose.core.normals import point_normals
 from equipose.core.opening import top_closure
 
 __all__ = ["Stage", "ObjectState", "register_stage", "unregister_stage", "registered_stages", "stage_metadata_keys",
-           "STAGE_ORDER", "TOP_PERCENTILE", "NORMAL_NEIGHBOURS", "cloud_points_option", "int_option", "MIN_FIT_POINTS",
+           "STAGE_ORDER", "TOP_PERCENTILE", "NORMAL_NEIGHBOURS", "cloud_points_option", "enabled_option", "int_option",
+           "MIN_FIT_POINTS",
            "ShareCapStage", "parse_share_cap", "is_share"]
 
 STAGE_ORDER: list = []          # stage names in run order (registration inserts each after its ``after``)
@@ -160,6 +161,16 @@ def int_option(name: str, value, low: int, high: int | None, meaning: str) -> in
         rng = f"{low}..{high}" if high is not None else f"≥ {low}"
         raise ConfigError(f"{name} must be 'auto' or an int in {rng} ({meaning}), got {value!r}")
     return int(value)
+
+
+def enabled_option(stage: str, value, entry) -> bool:
+    """A stage's ``enabled`` option: "auto" → whether the file holds the stage's metadata ``entry`` (not None), else
+    the bool given. Raises ``ConfigError`` for anything else."""
+    if isinstance(value, str) and value == "auto":
+        return entry is not None
+    if not isinstance(value, bool):
+        raise ConfigError(f"{stage} enabled must be 'auto', True or False, got {value!r}")
+    return value
 
 
 def cloud_points_option(stage: str, value) -> str | int:

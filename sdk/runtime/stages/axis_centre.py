@@ -30,7 +30,8 @@ import numpy as np
 from equipose.core.errors import ConfigError, MetadataError
 from equipose.core.normals import point_normals
 from equipose.core.revolution import axis_line
-from equipose.runtime.stage import NORMAL_NEIGHBOURS, ObjectState, Stage, cloud_points_option, register_stage
+from equipose.runtime.stage import (NORMAL_NEIGHBOURS, ObjectState, Stage, cloud_points_option, enabled_option,
+                                    register_stage)
 
 __all__ = ["AxisCentreStage", "parse_axis_centre", "DEFAULT_POINTS", "DEFAULT_MAX_SHIFT"]
 
@@ -54,12 +55,7 @@ class AxisCentreStage(Stage):
         if not spec.partial or not (spec.symmetry == "continuous:z" or spec.get("handle") is not None):
             return None
         entry = parse_axis_centre(spec.get(cls.metadata_key), spec.name)
-        enabled = options["enabled"]
-        if isinstance(enabled, str) and enabled == "auto":
-            enabled = entry is not None
-        elif not isinstance(enabled, bool):
-            raise ConfigError(f"axis_centre enabled must be 'auto', True or False, got {enabled!r}")
-        if not enabled:
+        if not enabled_option(cls.name, options["enabled"], entry):
             return None
         entry = entry or {"points": DEFAULT_POINTS, "max_shift": DEFAULT_MAX_SHIFT}
         points = entry["points"] if options["points"] == "auto" else options["points"]

@@ -28,7 +28,7 @@ import json
 from equipose.core.errors import ConfigError, MetadataError
 from equipose.core.geometry import rotation_between
 from equipose.core.rim import RIM_BAND, rim_axis
-from equipose.runtime.stage import ObjectState, Stage, cloud_points_option, register_stage
+from equipose.runtime.stage import ObjectState, Stage, cloud_points_option, enabled_option, register_stage
 
 __all__ = ["RimAxisStage", "parse_rim_axis", "DEFAULT_MAX_TURN", "DEFAULT_POINTS"]
 
@@ -53,12 +53,7 @@ class RimAxisStage(Stage):
         if not spec.partial or spec.symmetry != "continuous:z":
             return None
         entry = parse_rim_axis(spec.get(cls.metadata_key), spec.name)
-        enabled = options["enabled"]
-        if isinstance(enabled, str) and enabled == "auto":
-            enabled = entry is not None
-        elif not isinstance(enabled, bool):
-            raise ConfigError(f"rim_axis enabled must be 'auto', True or False, got {enabled!r}")
-        if not enabled:
+        if not enabled_option(cls.name, options["enabled"], entry):
             return None
         entry = entry or {"band": RIM_BAND, "max_turn": DEFAULT_MAX_TURN, "points": DEFAULT_POINTS}
         band = entry["band"] if options["band"] == "auto" else options["band"]
