@@ -29,8 +29,8 @@ from equipose.core.normals import point_normals
 from equipose.core.opening import top_closure
 
 __all__ = ["Stage", "ObjectState", "register_stage", "unregister_stage", "registered_stages", "stage_metadata_keys",
-           "STAGE_ORDER", "TOP_PERCENTILE", "NORMAL_NEIGHBOURS", "cloud_points_option", "enabled_option", "int_option",
-           "MIN_FIT_POINTS",
+           "STAGE_ORDER", "TOP_PERCENTILE", "NORMAL_NEIGHBOURS", "cloud_points_option", "enabled_option", "entry_options",
+           "int_option", "MIN_FIT_POINTS",
            "ShareCapStage", "parse_share_cap", "is_share"]
 
 STAGE_ORDER: list = []          # stage names in run order (registration inserts each after its ``after``)
@@ -171,6 +171,12 @@ def enabled_option(stage: str, value, entry) -> bool:
     if not isinstance(value, bool):
         raise ConfigError(f"{stage} enabled must be 'auto', True or False, got {value!r}")
     return value
+
+
+def entry_options(options: dict, entry: dict) -> dict:
+    """{key: ``options[key]``, or ``entry[key]`` where that option is "auto"} for every key of the stage's metadata
+    ``entry`` (the file's values, or the stage's defaults where the file holds none)."""
+    return {k: v if isinstance(options[k], str) and options[k] == "auto" else options[k] for k, v in entry.items()}
 
 
 def cloud_points_option(stage: str, value) -> str | int:

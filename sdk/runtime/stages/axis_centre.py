@@ -31,7 +31,7 @@ from equipose.core.errors import ConfigError, MetadataError
 from equipose.core.normals import point_normals
 from equipose.core.revolution import axis_line
 from equipose.runtime.stage import (NORMAL_NEIGHBOURS, ObjectState, Stage, cloud_points_option, enabled_option,
-                                    register_stage)
+                                    entry_options, register_stage)
 
 __all__ = ["AxisCentreStage", "parse_axis_centre", "DEFAULT_POINTS", "DEFAULT_MAX_SHIFT"]
 
@@ -57,9 +57,8 @@ class AxisCentreStage(Stage):
         entry = parse_axis_centre(spec.get(cls.metadata_key), spec.name)
         if not enabled_option(cls.name, options["enabled"], entry):
             return None
-        entry = entry or {"points": DEFAULT_POINTS, "max_shift": DEFAULT_MAX_SHIFT}
-        points = entry["points"] if options["points"] == "auto" else options["points"]
-        shift = entry["max_shift"] if options["max_shift"] == "auto" else options["max_shift"]
+        chosen = entry_options(options, entry or {"points": DEFAULT_POINTS, "max_shift": DEFAULT_MAX_SHIFT})
+        points, shift = chosen["points"], chosen["max_shift"]
         if not _share(shift):
             raise ConfigError(f"axis_centre max_shift must be 'auto' or a share of the body radius in (0, 2], got "
                               f"{shift!r}")

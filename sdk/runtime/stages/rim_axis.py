@@ -2,8 +2,7 @@
 pose's symmetry axis turned onto the normal of the plane of the container's rim (``equipose.core.rim.rim_axis``).
 
 A bowl's side is close to a sphere, whose normals do not fix an axis (the ``cylinder`` stage's reading), and the
-network reads a partial bowl's axis several degrees off (median 4.8° on rendered occluded bowls, 19° on a real
-white bowl of the RealSense frames, v0.49). The rim and the upper wall seen from above form a ring band whose plane
+network reads a partial bowl's axis several degrees off (docs/results/real/README.md, v0.49). The rim and the upper wall seen from above form a ring band whose plane
 fixes the axis by geometry alone. The pose is turned by the smallest rotation taking its axis onto the fitted one
 (the azimuth of a symmetric body does not matter; the centre stays, for ``axis_centre`` to move across the new axis).
 A fit that the band refuses (too few points, not a ring) or that would turn the axis by more than ``max_turn``
@@ -28,7 +27,8 @@ import json
 from equipose.core.errors import ConfigError, MetadataError
 from equipose.core.geometry import rotation_between
 from equipose.core.rim import RIM_BAND, rim_axis
-from equipose.runtime.stage import ObjectState, Stage, cloud_points_option, enabled_option, register_stage
+from equipose.runtime.stage import (ObjectState, Stage, cloud_points_option, enabled_option,
+                                    entry_options, register_stage)
 
 __all__ = ["RimAxisStage", "parse_rim_axis", "DEFAULT_MAX_TURN", "DEFAULT_POINTS"]
 
@@ -55,10 +55,9 @@ class RimAxisStage(Stage):
         entry = parse_rim_axis(spec.get(cls.metadata_key), spec.name)
         if not enabled_option(cls.name, options["enabled"], entry):
             return None
-        entry = entry or {"band": RIM_BAND, "max_turn": DEFAULT_MAX_TURN, "points": DEFAULT_POINTS}
-        band = entry["band"] if options["band"] == "auto" else options["band"]
-        turn = entry["max_turn"] if options["max_turn"] == "auto" else options["max_turn"]
-        points = entry["points"] if options["points"] == "auto" else options["points"]
+        chosen = entry_options(options, entry or {"band": RIM_BAND, "max_turn": DEFAULT_MAX_TURN,
+                                                  "points": DEFAULT_POINTS})
+        band, turn, points = chosen["band"], chosen["max_turn"], chosen["points"]
         if not _band(band):
             raise ConfigError(f"rim_axis band must be 'auto' or a share in (0, 1), got {band!r}")
         if not _turn(turn):
