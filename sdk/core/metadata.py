@@ -60,7 +60,7 @@ from equipose.core import icosahedral
 from equipose.core.errors import MetadataError, ModelVersionError
 
 __all__ = ["FORMAT_VERSION", "READABLE_FORMATS", "REQUIRED_KEYS", "FRAME_PRIOR_STEPS", "CONFIDENCE_FEATURES", "MAX_COPIES", "MAX_POLISH", "MAX_DENSIFY",
-           "encode_metadata", "decode_metadata", "encode_turn_classifier", "float_entry"]
+           "encode_metadata", "decode_metadata", "encode_turn_classifier", "flush_negligible", "float_entry"]
 
 FORMAT_VERSION = 3                                         # 2 for presets without quotient (vertex) layers
 READABLE_FORMATS = (1, 2, 3)                               # 1: kNN and hypothesis scores inside the graph
@@ -147,11 +147,22 @@ def _flip_templates(text, source: str):
     return {"points": pts, "axes": axes}
 
 
+def flush_negligible(a, rel: float = 1e-12) -> np.ndarray:
+    """``a`` as float32 with the values below ``rel`` × its largest magnitude set to 0 (subnormals always). A product
+    with a subnormal operand or result takes ~100× longer on x86 CPUs that do not flush them (onnxruntime's and
+    OpenBLAS's kernels run without flush-to-zero), and trained weights decayed to 1e-38 give such products with any
+    activation; their share of a sum is below float32's resolution (6e-8) by orders of magnitude."""
+    x = np.array(a, np.float32)
+    top = float(np.abs(x).max()) if x.size else 0.0
+    x[np.abs(x) < max(np.finfo(np.float32).tiny, rel * top)] = 0.0
+    return x
+
+
 def encode_turn_classifier(point: list, head: list, axes, margin: float, ambiguous_margin: float,
                            source: dict | None = None) -> str:
     """``turn_classifier`` metadata value from layer lists [(W [out, in], b [out]), ...] (float32, ``x Wᵀ + b``)."""
     def layer(W, b):
-        W, b = np.asarray(W, "<f4"), np.asarray(b, "<f4")
+        W, b = flush_negligible(W).astype("<f4"), flush_negligible(b).astype("<f4")
         return {"shape": list(W.shape), "weight": base64.b64encode(W.tobytes()).decode("ascii"),
                 "bias": base64.b64encode(b.tobytes()).decode("ascii")}
     return json.dumps({"axes": list(axes), "margin": float(margin), "ambiguous_margin": float(ambiguous_margin),
@@ -173,7 +184,7 @@ def _turn_classifier(text, source: str):
                 o, i = (int(v) for v in L["shape"])
                 W = np.frombuffer(base64.b64decode(L["weight"]), "<f4").reshape(o, i)
                 b = np.frombuffer(base64.b64decode(L["bias"]), "<f4").reshape(o)
-                layers.append((W.astype(np.float32), b.astype(np.float32)))
+                layers.append((flush_negligible(W), flush_negligible(b)))
             weights[part] = layers
         margin, amb = float(d["margin"]), float(d["ambiguous_margin"])
     except (ValueError, KeyError, TypeError) as e:

@@ -101,6 +101,23 @@ def test_the_runner_up_half_turn_is_reported_relative_to_the_kept_pose(rng):
     assert [relative_turn(a, b) for a, b in ((None, "z"), ("x", None), ("x", "y"), ("z", "x"))] == ["z", "x", "z", "y"]
 
 
+def test_decayed_weights_read_as_zero_and_keep_the_scores(rng):
+    """Weights that training decayed to ~1e-38 give subnormal products (~100× slower on x86 without flush-to-zero):
+    the decoder zeroes every value below 1e-12 × its tensor's largest, and the scores stay the same to the bit."""
+    point = [(rng.normal(size=(16, 3)).astype(np.float32), rng.normal(size=16).astype(np.float32)),
+             (rng.normal(size=(24, 16)).astype(np.float32), rng.normal(size=24).astype(np.float32))]
+    head = [(rng.normal(size=(1, 48)).astype(np.float32), np.zeros(1, np.float32))]
+    point[1][0][:, :5] = np.float32(3e-39)                                      # subnormal
+    point[1][0][:, 5:8] = np.float32(1e-30)                                     # normal, but its products are not
+    sets = rng.normal(size=(4, 100, 3)).astype(np.float32)
+    raw = score_sets({"point": point, "head": head}, sets)
+    tc = decode_metadata_value(encode_turn_classifier(point, head, "xyz", 0.0, 1.0))
+    W = tc["weights"]["point"][1][0]
+    assert not W[:, :8].any() and np.count_nonzero(W) == W.size - 8 * 24         # only the decayed ones are zero
+    np.testing.assert_array_equal(score_sets(tc["weights"], sets), raw)
+    np.testing.assert_array_equal(TurnScorer(tc["weights"])(sets), TurnScorer({"point": point, "head": head})(sets))
+
+
 @pytest.mark.parametrize("change, message", [
     (lambda d: d.update(axes=["w"]), "axes"),
     (lambda d: d["head"][0].update(shape=[1, 6]), "malformed|chain"),
