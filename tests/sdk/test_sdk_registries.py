@@ -69,3 +69,24 @@ def test_shipped_weights_are_named_arch_dot_tag():
     assert resolve_model("edge.cup-tabletop") == demo_model_path()
     with pytest.raises(ValueError, match="ships with preset"):
         resolve_model("paper.cup-tabletop")
+
+
+def test_shipped_weights_hold_no_decayed_values():
+    """No shipped graph initializer or decoded turn-classifier weight is a nonzero below 1e-20: such weights (trained
+    ones decay to 1e-38) give subnormal products, ~100× slower on x86 CPUs (docs/benchmarks.md, v0.50)."""
+    import onnx
+    from onnx import numpy_helper
+
+    from equipose.core.model_file import read_metadata
+    from equipose.models import list_models
+    for p in list_models():
+        if p.name.endswith(".int8.onnx"):
+            continue
+        tensors = [(i.name, numpy_helper.to_array(i)) for i in onnx.load(str(p), load_external_data=False).graph.initializer]
+        turn = read_metadata(p).get("turn_classifier")
+        if turn is not None:
+            tensors += [(f"turn {part} {k}", W) for part in ("point", "head") for k, (W, _) in enumerate(turn["weights"][part])]
+        for name, a in tensors:
+            if a.dtype == np.float32:
+                tiny = (a != 0) & (np.abs(a) < 1e-20)
+                assert not tiny.any(), (p.name, name, int(tiny.sum()))
