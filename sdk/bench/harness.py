@@ -24,8 +24,10 @@ import time
 import numpy as np
 
 from equipose.bench.backends import BACKENDS, get_backend
-__all__ = ["BACKENDS", "run_backend", "run_benchmark", "matmul_peak_gmacs", "format_table", "percentiles"]
+__all__ = ["BACKENDS", "run_backend", "run_benchmark", "matmul_peak_gmacs", "format_table", "percentiles",
+           "host_state"]
 STAGES = ("crop", "fps", "inference", "selection")
+BUSY_WARN = 0.1                 # other work on this share of the cores or more: the figures are not idle figures
 
 
 def percentiles(ms: list) -> dict:
@@ -36,6 +38,42 @@ def percentiles(ms: list) -> dict:
 
 def _peak_rss_mb() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0   # Linux: kilobytes
+
+
+def _cpu_jiffies():
+    """(busy, total) clock ticks of all CPUs since boot from /proc/stat, or None where it cannot be read."""
+    try:
+        with open("/proc/stat") as f:
+            fields = [int(v) for v in f.readline().split()[1:9]]    # user nice system idle iowait irq softirq steal
+    except (OSError, ValueError):
+        return None
+    total = sum(fields)
+    return total - fields[3] - fields[4], total
+
+
+def _cpu_model() -> str:
+    try:
+        with open("/proc/cpuinfo") as f:
+            for line in f:
+                if line.startswith("model name"):
+                    return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    import platform
+    return platform.processor() or platform.machine()
+
+
+def host_state(seconds: float = 0.3) -> dict:
+    """{"cpu": model name, "cores": logical CPUs, "busy": share of all cores that other work kept busy during
+    ``seconds`` while this process slept (0–1; None where /proc/stat cannot be read)}. Niced jobs count: they still
+    take cycles and caches from the timed runs."""
+    a = _cpu_jiffies()
+    time.sleep(seconds)
+    b = _cpu_jiffies()
+    busy = None
+    if a is not None and b is not None and b[1] > a[1]:
+        busy = min(1.0, max(0.0, (b[0] - a[0]) / (b[1] - a[1])))
+    return {"cpu": _cpu_model(), "cores": os.cpu_count() or 1, "busy": busy}
 
 
 def _sample_frame():
@@ -158,6 +196,7 @@ def run_benchmark(model_path: str, backends=BACKENDS, threads: int = 2, objects:
     from equipose.runtime.estimator import PoseEstimator
     from equipose.core.presets import ModelConfig, total_macs
 
+    host = host_state()                                                         # before anything of ours runs
     est = PoseEstimator(model_path, threads=threads)
     cfg = ModelConfig.from_dict(est.metadata["model_config"])
     macs = total_macs(cfg, partial=bool(est.metadata["partial"]))
@@ -178,7 +217,7 @@ def run_benchmark(model_path: str, backends=BACKENDS, threads: int = 2, objects:
             "refine": rows[0].get("refine") if rows else None, "copies": rows[0].get("copies") if rows else None,
             "adaptive_threads": adaptive_threads, "profile": profile, "stages_options": stages,
             "objects": objects, "macs": macs, "matmul_peak_gmacs": peak, "bound_ms": macs * objects / peak / 1e6,
-            "rows": rows, "ratios": ratios}
+            "host": host, "rows": rows, "ratios": ratios}
 
 
 def format_table(result: dict) -> str:
@@ -191,6 +230,7 @@ def format_table(result: dict) -> str:
              + f", ICP re-scoring of {result.get('refine') or 0} hypotheses (selection stage)"
              + (f", {result['copies']} rotated input copies per object" if (result.get("copies") or 1) > 1 else ""),
              f"MatMul peak {result['matmul_peak_gmacs']:.1f} GMAC/s → bound {result['bound_ms']:.2f} ms/frame",
+             *_host_lines(result.get("host")),
              f"{'backend':<18} {'p50 ms':>8} {'bound':>6} {'p95 ms':>8} {'max ms':>8} {'FPS':>8} {'RSS MB':>8} "
              f"{'size MB':>8} {'× fp32':>7}  {'crop':>6} {'fps':>6} {'infer':>7} {'× fp32':>7} {'select':>6} "
              f"{'threads':>7}"]
@@ -213,6 +253,19 @@ def format_table(result: dict) -> str:
         lines.append("selection by stage (p50 ms, " + first["backend"] + "): " +
                      " · ".join(f"{k} {v:.2f}" for k, v in first["pipeline"].items() if v >= 0.01))
     return "\n".join(lines)
+
+
+def _host_lines(host) -> list:
+    """The table's host line, and a warning where other work was running."""
+    if not host:
+        return []
+    busy = host.get("busy")
+    line = f"host {host['cpu']}, {host['cores']} logical CPUs" + (
+        f", other work {100 * busy:.0f} % of them just before the runs" if busy is not None else "")
+    if busy is not None and busy >= BUSY_WARN:
+        return [line, "warning: other work was running on this host: these are not idle figures (stop other jobs, "
+                      "including niced ones, to measure)"]
+    return [line]
 
 
 def _worker_main(argv):

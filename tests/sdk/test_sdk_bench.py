@@ -35,6 +35,13 @@ def test_bench_all_backends(tiny_model, tmp_path):
         torch_row["stages"]["inference"]["p50_ms"] / fp32["stages"]["inference"]["p50_ms"])
     table = format_table(res)
     assert "onnxruntime-int8" in table and "× fp32" in table
+    host = res["host"]
+    assert host["cores"] >= 1 and host["cpu"] and (host["busy"] is None or 0.0 <= host["busy"] <= 1.0)
+    assert f"{host['cores']} logical CPUs" in table
+    res["host"] = {**host, "busy": 0.9}                                         # a busy host is reported as such
+    assert "not idle figures" in format_table(res)
+    res["host"] = {**host, "busy": 0.0}
+    assert "not idle figures" not in format_table(res)
 
 
 def test_bench_cli_json(tiny_model, tmp_path):
