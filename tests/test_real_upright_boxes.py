@@ -33,3 +33,21 @@ def test_boxes_name_shipped_models_and_lie_inside_their_frames():
 def test_every_boxed_frame_has_depth_and_colour():
     for frame in {o["frame"] for o in _objects()}:
         assert (DATA / f"{frame:06d}-depth.png").is_file() and (DATA / f"{frame:06d}-color.png").is_file()
+
+
+def test_box_vs_mask_own_category_table_keeps_each_models_objects(capsys):
+    """``tools/bench/box_vs_mask.py``'s own-category table: a model's row counts only the objects assigned its
+    category, with the shares beyond 2° and 5 mm."""
+    import importlib.util
+    spec = importlib.util.spec_from_file_location("box_vs_mask", ROOT / "tools" / "bench" / "box_vs_mask.py")
+    tool = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(tool)
+    rows = [{"model": "can-tabletop", "scene": "s", "object": 2, "axis_deg": 1.0, "centre_mm": 3.0},
+            {"model": "can-tabletop", "scene": "s", "object": 3, "axis_deg": 90.0, "centre_mm": 40.0},
+            {"model": "can-tabletop", "scene": "s", "object": 4, "axis_deg": 50.0, "centre_mm": 50.0},   # a bowl
+            {"model": "can-tabletop", "scene": "s", "object": 5, "error": "TooFewPointsError"}]
+    tool.own_table(rows, ["can-tabletop", "cup-tabletop"], {"s": {"2": "can", "3": "can", "4": "bowl"}})
+    out = capsys.readouterr().out.splitlines()
+    can = [line.split() for line in out if "can-tabletop" in line]
+    assert len(can) == 1 and can[0][1:] == ["2", "45.50", "90.0", "0.50", "21.5", "0.50"]
+    assert not any("cup-tabletop" in line for line in out)                        # no cup among the objects
