@@ -129,7 +129,8 @@ def own_table(rows: list, models, assign: dict) -> None:
     print(f"\nown category only (--assign): {'model':16s} {'objects':>7s} {'axis° med':>9s} {'max':>6s} {'>2°':>5s} "
           f"{'centre mm med':>13s} {'>5 mm':>6s}")
     for model in models:
-        cat = next((c for c, m in OWN_MODEL.items() if m == model), None)
+        stem = pathlib.Path(model).name.removesuffix(".onnx").removesuffix(".int8")      # a name or a file of it
+        cat = next((c for c, m in OWN_MODEL.items() if m == stem), None)
         ok = [r for r in rows if r["model"] == model and "axis_deg" in r
               and cat is not None and assign.get(r["scene"], {}).get(str(r["object"])) == cat]
         if not ok:
