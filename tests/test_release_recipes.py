@@ -59,6 +59,7 @@ def test_recipe_is_valid_and_describes_the_shipped_file(name):
     axis = json.loads(meta.get("axis_centre") or "null")
     assert axis == r.axis_centre
     assert json.loads(meta.get("rim_axis") or "null") == r.rim_axis
+    assert (meta.get("seat") is not None) == (r.seat_views is not None)
     risk = json.loads(meta.get("flip_risk") or "null")
     assert (risk is not None) == (r.flip_risk_views is not None)
     if risk:
@@ -234,3 +235,18 @@ def test_run_steps_runs_tees_and_stops_on_failure(tmp_path, capsys):
     assert "hello" in capsys.readouterr().out
     with pytest.raises(SystemExit, match="step 1"):
         run_steps([Step("fail", ("python", "-c", "raise SystemExit(3)"))])
+
+
+def test_the_seat_fit_runs_before_the_centre_and_confidence_fits(tmp_path):
+    p = _write(tmp_path, "[seat]\nviews = 7\n[centre]\nviews = 3\n")
+    r = load_recipe(p)
+    assert r.seat_views == 7
+    steps = plan(r, state="-", skip_eval=True)
+    titles = [s.title for s in steps]
+    seat = [i for i, t in enumerate(titles) if "seat stage" in t]
+    fits = [i for i, t in enumerate(titles) if t.startswith("m ") and ("offset" in t or "confidence" in t)]
+    assert len(seat) == 1 and fits and all(seat[0] < i for i in fits)
+    assert steps[seat[0]].argv[steps[seat[0]].argv.index("--views") + 1] == "7"
+    p.write_text('category = "sofa"\nmode = "complete"\n[seat]\nviews = 5\n')
+    with pytest.raises(ConfigError, match="partial-view"):
+        load_recipe(p)

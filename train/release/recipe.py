@@ -40,6 +40,10 @@ which stages go into the file's metadata. Every key, its type, its default and i
     band             float  the top share of the extent along the axis that fits the rim plane, in (0, 1) (0.3)
     max_turn         float  the largest turn of the axis, degrees, in (0, 90] (default 30)
     points           str|int "input" | "cloud" | n points of the crop (default "cloud")
+    [seat]                  partial containers and cans standing on a table: the ``seat`` stage's centre height
+                            (``equipose.train.evaluation.seat``), fitted before the centre and confidence fits;
+                            absent: the stage stays off
+    views            int    rendered training views of the fit
     [confidence]            the calibrated confidence (``equipose.train.evaluation.confidence``)
     keep_weights     bool   keep the file's weights and choose only its ambiguity flags again (default false)
     views            int    tabletop models: rendered views of the fit (default 200)
@@ -111,6 +115,7 @@ class Recipe:
     rim_axis_band: float | None = None
     rim_axis_max_turn: float | None = None
     rim_axis_points: str | int | None = None
+    seat_views: int | None = None
 
     @property
     def axis_centre(self) -> dict | None:
@@ -216,6 +221,7 @@ SCHEMA = {
     ("rim_axis", "max_turn"): ("rim_axis_max_turn", _float(0, 90, open_lo=True, closed_hi=True),
                                "degrees in (0, 90]"),
     ("rim_axis", "points"): ("rim_axis_points", _points, f'"input", "cloud" or an integer ≥ {MIN_FIT_POINTS}'),
+    ("seat", "views"): ("seat_views", _int(1), "rendered training views, an integer ≥ 1"),
 }
 TABLES = sorted({t for t, _ in SCHEMA if t})
 
@@ -255,6 +261,7 @@ def _check_combinations(r: Recipe, source: str) -> None:
                     "[turn_classifier]": bool(r.turn_state or r.turn_copy_from),
                     "[centre]": r.centre_views is not None, "[flip_risk]": r.flip_risk_views is not None,
                     "[axis_centre]": r.axis_centre is not None, "[rim_axis]": r.rim_axis is not None,
+                    "[seat]": r.seat_views is not None,
                     "[rest_side]": r.rest_side_views is not None or r.rest_side_upright_views is not None
                     or r.rest_side_upright_height_views is not None}
     complete_only = {"rest_facet": r.rest_facet is not None, "frame_priors": r.frame_priors is not None}

@@ -114,6 +114,9 @@ def _file_steps(r: Recipe, f: str, views: int, skip_eval: bool) -> list:
         steps.append(Step(f"{f}: the axis_centre stage ({r.axis_centre})",
                           (f"update_metadata({model}, axis_centre={r.axis_centre})",),
                           call=lambda: _set_metadata(model, axis_centre=r.axis_centre)))
+    if r.seat_views and f == r.name:                # before the centre and confidence fits: they see its centres
+        steps.append(_python("equipose.train.evaluation.seat", "--model", model, "--views", r.seat_views, "--write",
+                             title=f"{f} (and its int8 copy): the seat stage's centre height"))
     if r.flip_risk_views and f == r.name:           # before the confidence fit: its flag is what the confidence reads
         shapes = [] if r.flip_risk_shapes is None else ["--shapes", r.flip_risk_shapes]
         steps.append(_python("equipose.train.evaluation.flip_risk", "--model", model, "--views", r.flip_risk_views,
