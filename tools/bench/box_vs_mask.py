@@ -12,7 +12,7 @@ prior of both predictions (default none, which compares the two crops alone; "pl
 ``--stages``: stage options for both (``PoseEstimator(stages=...)``, e.g. '{"axis_centre": {"enabled": true}}').
 A second table keeps, per model, only the objects of its own category (``--assign``, default
 docs/results/real/mosd_categories.json: cup, bowl, can → cup-, bowl-, can-tabletop), with the shares beyond the
-issue's 2° and 5 mm.
+2° and 5 mm a box is held to against the mask.
 The centre distance is also split into its part along the support plane's normal (the object's height; the plane of
 a mask prompt with ``up="plane"``) and across it.
 """
