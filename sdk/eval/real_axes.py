@@ -47,6 +47,8 @@ ROOT = pathlib.Path(__file__).resolve().parents[2]          # the repository (ed
 DEFAULT_DATA = pathlib.Path(os.environ.get("EQUIPOSE_DATA", ROOT.parent / "shared" / "data")) / \
     "kinect_pcl_objects" / "mOSD_learn_cylindric"
 DEFAULT_MODELS = ["cup-tabletop", "bowl-tabletop", "can-tabletop"]
+CATEGORY_MODELS = {"cup": "cup-tabletop", "bowl": "bowl-tabletop", "can": "can-tabletop"}   # mOSD category → model
+DEFAULT_ASSIGN = ROOT / "docs" / "results" / "real" / "mosd_categories.json"   # {scene: {object id: category}}
 BASELINE = "pca-baseline"
 CHANCE = "random-axis"
 
@@ -213,10 +215,10 @@ def main(argv=None) -> int:
     ap.add_argument("--limit-scenes", type=int, default=None, metavar="K", help="only the first K scenes")
     ap.add_argument("--threads", type=int, default=1, help="onnxruntime intra-op threads")
     ap.add_argument("--min-points", type=int, default=64, help="skip objects with fewer valid points")
-    ap.add_argument("--assign", type=pathlib.Path, default=ROOT / "docs" / "results" / "real" / "mosd_categories.json",
+    ap.add_argument("--assign", type=pathlib.Path, default=DEFAULT_ASSIGN,
                     help="JSON {scene: {object id: category}}: adds a 'matched' summary row where each object is "
                          "judged by the model of its category (see --category-models); '' to skip")
-    ap.add_argument("--category-models", default="cup=cup-tabletop,bowl=bowl-tabletop,can=can-tabletop",
+    ap.add_argument("--category-models", default=",".join(f"{c}={m}" for c, m in CATEGORY_MODELS.items()),
                     help="category=model label pairs for the matched row (default %(default)s)")
     args = ap.parse_args(argv)
 

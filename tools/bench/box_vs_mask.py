@@ -28,6 +28,7 @@ import numpy as np
 
 from equipose import PoseEstimator
 from equipose.core.errors import EquiposeError
+from equipose.eval.real_axes import CATEGORY_MODELS, DEFAULT_ASSIGN
 from equipose.sources.pcd import read_organized_cloud
 
 
@@ -75,9 +76,7 @@ def main(argv=None) -> int:
     ap = scene_arguments(__doc__.splitlines()[0])
     ap.add_argument("--up", choices=("none", "plane"), default="none", help="the up prior of both predictions")
     ap.add_argument("--stages", type=json.loads, default=None, help="stage options of both predictions, as JSON")
-    ap.add_argument("--assign", default=str(pathlib.Path(__file__).resolve().parents[2] / "docs" / "results" / "real"
-                                            / "mosd_categories.json"),
-                    help="the objects' categories (for the own-category table)")
+    ap.add_argument("--assign", default=str(DEFAULT_ASSIGN), help="the objects' categories (for the own-category table)")
     a = ap.parse_args(argv)
     clouds = read_scenes(a.data)
     rows = []
@@ -120,9 +119,6 @@ def main(argv=None) -> int:
     return 0
 
 
-OWN_MODEL = {"cup": "cup-tabletop", "bowl": "bowl-tabletop", "can": "can-tabletop"}   # category → its model
-
-
 def own_table(rows: list, models, assign: dict) -> None:
     """Print, per model, the box-vs-mask figures on the objects ``assign`` ({scene: {object id: category}}) gives its
     category: medians, the largest axis angle, and the shares beyond 2° and 5 mm."""
@@ -130,7 +126,7 @@ def own_table(rows: list, models, assign: dict) -> None:
           f"{'centre mm med':>13s} {'>5 mm':>6s}")
     for model in models:
         stem = pathlib.Path(model).name.removesuffix(".onnx").removesuffix(".int8")      # a name or a file of it
-        cat = next((c for c, m in OWN_MODEL.items() if m == stem), None)
+        cat = next((c for c, m in CATEGORY_MODELS.items() if m == stem), None)
         ok = [r for r in rows if r["model"] == model and "axis_deg" in r
               and cat is not None and assign.get(r["scene"], {}).get(str(r["object"])) == cat]
         if not ok:

@@ -30,9 +30,10 @@ from equipose import PoseEstimator
 from equipose.core.errors import EquiposeError
 from equipose.eval.datasets.frames import mask_box
 from equipose.eval.metrics import auroc
+from equipose.eval.real_axes import CATEGORY_MODELS, DEFAULT_ASSIGN
 from equipose.eval.realdata import load_labelled_scene, table_plane
 
-MODELS = {"cup": "cup-tabletop", "bowl": "bowl-tabletop", "can": "can-tabletop"}
+MODELS = CATEGORY_MODELS         # the model each mOSD category runs through
 
 
 def _axis(r) -> np.ndarray:
@@ -42,10 +43,9 @@ def _axis(r) -> np.ndarray:
 def main(argv=None) -> int:
     root = pathlib.Path(os.environ.get("EQUIPOSE_DATA", pathlib.Path(__file__).resolve().parents[2].parent
                                         / "shared" / "data"))
-    repo = pathlib.Path(__file__).resolve().parents[2]
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--data", default=str(root / "kinect_pcl_objects" / "mOSD_learn_cylindric"))
-    ap.add_argument("--assign", default=str(repo / "docs" / "results" / "real" / "mosd_categories.json"))
+    ap.add_argument("--assign", default=str(DEFAULT_ASSIGN))
     ap.add_argument("--profile", default="default")
     ap.add_argument("--up", choices=("none", "plane"), default="none", help="the up prior of every prediction")
     ap.add_argument("--models-from", help="a folder of model files to use instead of the shipped ones of the same "
