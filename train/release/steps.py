@@ -70,6 +70,11 @@ def _set_metadata(path: str, **entries) -> None:
     update_metadata(REPO / path, **entries)
 
 
+def _metadata_step(title: str, model: str, key: str, value) -> Step:
+    """A step that writes one metadata entry ``key`` = ``value`` into ``model``."""
+    return Step(title, (f"update_metadata({model}, {key}={value})",), call=lambda: _set_metadata(model, **{key: value}))
+
+
 def _file_steps(r: Recipe, f: str, views: int, skip_eval: bool) -> list:
     """The steps of one file (``f``: "MODEL" or "MODEL.int8")."""
     model, steps = f"{MODELS}/{f}.onnx", []
@@ -84,9 +89,8 @@ def _file_steps(r: Recipe, f: str, views: int, skip_eval: bool) -> list:
             steps.append(_equipose("eval", "--model", model, *test, "--refine", 0, "--icp-templates", 0,
                                    title=f"{f}: the plain network, for reference", tee=f"{RESULTS}/{f}.norefine.txt"))
     if r.rest_facet is not None:
-        steps.append(Step(f"{f}: rest facet, {r.rest_facet:g}° tolerance",
-                          (f"update_metadata({model}, rest_facet={{'tolerance_deg': {float(r.rest_facet)}}})",),
-                          call=lambda: _set_metadata(model, rest_facet={"tolerance_deg": float(r.rest_facet)})))
+        steps.append(_metadata_step(f"{f}: rest facet, {r.rest_facet:g}° tolerance", model, "rest_facet",
+                                    {"tolerance_deg": float(r.rest_facet)}))
     if r.flip_teacher:
         steps.append(_python("equipose.export.flip_templates", "--model", model, "--teacher", r.flip_teacher,
                              "--category", r.category, "--axes", r.flip_axes, "--pool", r.flip_pool,
@@ -107,13 +111,10 @@ def _file_steps(r: Recipe, f: str, views: int, skip_eval: bool) -> list:
         steps.append(_python("equipose.export.frame_priors", "--model", model, "--category", r.category,
                              "--steps", r.frame_priors, title=f"{f}: frame priors ({r.frame_priors})"))
     if r.rim_axis is not None:                      # before the centre and confidence fits: they see its axes
-        steps.append(Step(f"{f}: the rim_axis stage ({r.rim_axis})",
-                          (f"update_metadata({model}, rim_axis={r.rim_axis})",),
-                          call=lambda: _set_metadata(model, rim_axis=r.rim_axis)))
+        steps.append(_metadata_step(f"{f}: the rim_axis stage ({r.rim_axis})", model, "rim_axis", r.rim_axis))
     if r.axis_centre is not None:                   # before the centre and confidence fits: they see its centres
-        steps.append(Step(f"{f}: the axis_centre stage ({r.axis_centre})",
-                          (f"update_metadata({model}, axis_centre={r.axis_centre})",),
-                          call=lambda: _set_metadata(model, axis_centre=r.axis_centre)))
+        steps.append(_metadata_step(f"{f}: the axis_centre stage ({r.axis_centre})", model, "axis_centre",
+                                    r.axis_centre))
     if r.seat_views and f == r.name:                # before the centre and confidence fits: they see its centres
         steps.append(_python("equipose.train.evaluation.seat", "--model", model, "--views", r.seat_views, "--write",
                              title=f"{f} (and its int8 copy): the seat stage's centre height"))
