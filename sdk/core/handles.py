@@ -25,7 +25,7 @@ from equipose.core.order_statistics import sorted_percentile, sorted_quantile
 
 __all__ = ["HandleFit", "fit_handle", "align_handle", "turn_about_z", "handle_zone_count", "handle_zone_mask", "HANDLE_MIN_POINTS",
            "HANDLE_MIN_FRACTION", "HANDLE_MIN_SHARE", "HANDLE_MIN_MASS", "HANDLE_MAX_RATIO",
-           "HANDLE_MIN_CLUSTERED", "clustered_count"]
+           "HANDLE_MIN_CLUSTERED", "HANDLE_ZONE_MARGIN", "clustered_count"]
 
 HANDLE_MIN_SHARE = 0.5           # fit_handle's window share for a handle seen in a partial view (complete clouds: 0.45)
 HANDLE_MIN_MASS = 0.008          # ... and excess per point (lower admits silhouette noise of real depth as handles)
@@ -33,6 +33,7 @@ HANDLE_MIN_POINTS = 4            # observed points inside the handle zone for th
 HANDLE_MIN_FRACTION = 0.01       # ... and at least this fraction of the observed points
 HANDLE_MIN_CLUSTERED = 3         # ... of which at least this many lie in a cluster (``clustered_count``): a handle is
                                  # a surface, flying pixels at an occluder's edge are scattered
+HANDLE_ZONE_MARGIN = 1.15       # a handle point lies beyond this × the body radius of its height band
 HANDLE_MAX_RATIO = 2.6           # radius / body radius a handle reaches at most (training mugs: 1.58–2.45): points
                                  # farther out are something else (an occluder's edge, flying pixels)
 
@@ -117,7 +118,7 @@ def _fit_handle(p, edges, bins, cx, cy, cap) -> tuple:
         r[i] = np.sqrt(dx * dx + dy * dy)
         az[i] = np.arctan2(dy, dx)                                             # radians
     ratio = r / np.maximum(_band_radius(r, band, bands), 1e-12)                # [N]
-    excess = np.where(ratio <= cap, np.maximum(ratio - 1.15, 0.0), 0.0)       # [N]
+    excess = np.where(ratio <= cap, np.maximum(ratio - HANDLE_ZONE_MARGIN, 0.0), 0.0)   # [N]
     hist = np.zeros(bins)
     for i in range(N):
         hist[int((az[i] + np.pi) / (2 * np.pi) * bins) % bins] += excess[i]
@@ -158,17 +159,21 @@ def handle_zone_count(observed_obj: np.ndarray, canonical_obj: np.ndarray, direc
 
 
 def handle_zone_mask(observed_obj: np.ndarray, canonical_obj: np.ndarray, direction,
-                     max_ratio: float | None = None) -> np.ndarray:
+                     max_ratio: float | None = None, observed_body: bool = False) -> np.ndarray:
     """[P] bool: which observed points fall where the handle is, both clouds in the category frame.
 
     Convention: ``observed_obj`` [P, 3] and ``canonical_obj`` [M, 3] in the same unit, category frame (z up, the
     handle along ``direction`` [3], a horizontal unit vector). The body axis and the per-height body radius come from
     the canonical shape (``fit_handle``'s circle fit, with the canonical points turned so ``direction`` is +x; the body
     radius of a height band is the 90th percentile radius of its points away from the handle); the handle zone is the
-    part of space beyond 1.15× the body radius of the point's height band, within ±40° of the
+    part of space beyond ``HANDLE_ZONE_MARGIN`` × the body radius of the point's height band, within ±40° of the
     handle azimuth, inside the canonical shape's height range and (``max_ratio`` given) within ``max_ratio`` × the
     body radius. Points there cannot belong to the body: if the pose
-    were turned about the axis, or the handle were hidden, the zone would be empty.
+    were turned about the axis, or the handle were hidden, the zone would be empty. ``observed_body``: the zone also
+    starts beyond ``HANDLE_ZONE_MARGIN`` × the outer wall the camera sees in the band — the 75th percentile radius of
+    the *observed* points away from the handle (≥ 3 of them; else over all bands), above the inner wall and bottom
+    seen through the opening: where the predicted shape is narrower than the body seen (a body cut by an occluder),
+    its own wall would otherwise read as a handle.
     """
     obs = np.asarray(observed_obj, np.float64)
     can = np.asarray(canonical_obj, np.float64)
@@ -180,36 +185,49 @@ def handle_zone_mask(observed_obj: np.ndarray, canonical_obj: np.ndarray, direct
     fit = fit_handle(can)
     edges = _height_bands(can[:, 2], 6)
     cap = np.inf if max_ratio is None else float(max_ratio)
-    return _zone_mask(obs, can, edges, float(fit.centre[0]), float(fit.centre[1]), cap)
+    return _zone_mask(obs, can, edges, float(fit.centre[0]), float(fit.centre[1]), cap, bool(observed_body))
 
 
 @njit(cache=True)
-def _zone_mask(obs, can, edges, cx, cy, cap):
-    """``handle_zone_mask`` of ``obs`` [P, 3] against ``can`` [M, 3], both turned so the handle lies along +x, with
-    the canonical height band ``edges`` [B + 1], the body axis at (``cx``, ``cy``) and the outer bound ``cap``."""
-    bands = len(edges) - 1
-    M = len(can)
-    rc, off = np.empty(M), np.empty(M, np.bool_)
-    band_c = np.searchsorted(edges, can[:, 2]) - 1
-    for i in range(M):
-        vx, vy = can[i, 0] - cx, can[i, 1] - cy
-        rc[i] = np.sqrt(vx * vx + vy * vy)
-        off[i] = np.degrees(abs(np.arctan2(vy, vx))) > 40.0                  # canonical points away from the handle
-        band_c[i] = min(max(band_c[i], 0), bands - 1)
-    body = np.empty(bands)                     # per band: 90th percentile radius of the points away from the handle
+def _off_handle_radii(x, cx, cy, band, bands, stat, fallback):
+    """[bands] per height band: the ``stat`` percentile radius about (``cx``, ``cy``) of the points ``x`` [K, 3]
+    more than 40° away from +x (the handle), ``band`` [K] their band; a band with < 3 such points takes that
+    percentile over all bands, or ``fallback`` when there are < 3 in all."""
+    K = len(x)
+    r, off = np.empty(K), np.empty(K, np.bool_)
+    for i in range(K):
+        vx, vy = x[i, 0] - cx, x[i, 1] - cy
+        r[i] = np.sqrt(vx * vx + vy * vy)
+        off[i] = np.degrees(abs(np.arctan2(vy, vx))) > 40.0
+    whole = r[off]
+    every = sorted_percentile(np.sort(whole), stat) if len(whole) >= 3 else fallback
+    out = np.empty(bands)
     for k in range(bands):
-        sel = rc[off & (band_c == k)]
-        if len(sel) < 3:
-            sel = rc[off]
-        body[k] = sorted_percentile(np.sort(sel), 90.0) if len(sel) else np.nan
-    band_o = np.searchsorted(edges, obs[:, 2]) - 1
+        sel = r[off & (band == k)]
+        out[k] = sorted_percentile(np.sort(sel), stat) if len(sel) >= 3 else every
+    return out
+
+
+@njit(cache=True)
+def _zone_mask(obs, can, edges, cx, cy, cap, observed_body):
+    """``handle_zone_mask`` of ``obs`` [P, 3] against ``can`` [M, 3], both turned so the handle lies along +x, with
+    the canonical height band ``edges`` [B + 1], the body axis at (``cx``, ``cy``), the outer bound ``cap`` and the
+    ``observed_body`` bound."""
+    bands = len(edges) - 1
+    band_c = np.minimum(np.maximum(np.searchsorted(edges, can[:, 2]) - 1, 0), bands - 1)   # [M]
+    body = _off_handle_radii(can, cx, cy, band_c, bands, 90.0, np.nan)     # [B] canonical body radius per band
+    band_o = np.minimum(np.maximum(np.searchsorted(edges, obs[:, 2]) - 1, 0), bands - 1)   # [P]
+    inner = HANDLE_ZONE_MARGIN * body                                       # [B] where the zone starts
+    if observed_body:
+        seen = _off_handle_radii(obs, cx, cy, band_o, bands, 75.0, 0.0)    # [B] observed outer wall per band
+        inner = np.maximum(inner, HANDLE_ZONE_MARGIN * seen)
     out = np.empty(len(obs), np.bool_)
     for i in range(len(obs)):
-        b = min(max(band_o[i], 0), bands - 1)
+        b = band_o[i]
         vx, vy = obs[i, 0] - cx, obs[i, 1] - cy
         r = np.sqrt(vx * vx + vy * vy)
         az = np.degrees(abs(np.arctan2(vy, vx)))
-        out[i] = edges[0] <= obs[i, 2] <= edges[-1] and 1.15 * body[b] < r <= cap * body[b] and az < 40.0
+        out[i] = edges[0] <= obs[i, 2] <= edges[-1] and inner[b] < r <= cap * body[b] and az < 40.0
     return out
 
 

@@ -62,6 +62,24 @@ def test_handle_zone_sees_the_handle_only_where_it_is():
         handle_zone_count(toward, canonical[:10], [1, 0, 0])
 
 
+def test_a_body_wider_than_the_predicted_shape_is_not_a_handle():
+    """A mug seen with its handle hidden, posed against a predicted shape 25 % too narrow (a body cut by an
+    occluder): its own wall lies beyond 1.15 × the predicted radius. Bounded by the observed body, it is no handle;
+    a real handle on a body of the predicted width still is."""
+    canonical = synthetic_mug(0.0, radius=0.032, n=800, seed=1)                 # predicted: 25 % too narrow
+    hidden = synthetic_mug(0.0, handle=False)
+    front = hidden[(hidden[:, 0] > -0.01) & (hidden[:, 2] > -0.0499)]          # the wall facing +x (the table
+                                                                                # hides the bottom), no handle
+    assert handle_zone_mask(front, canonical, [1, 0, 0], HANDLE_MAX_RATIO).sum() > 100    # the wall reads as handle
+    assert not handle_zone_mask(front, canonical, [1, 0, 0], HANDLE_MAX_RATIO, observed_body=True).any()
+    mug = synthetic_mug(0.0)
+    seen = mug[mug[:, 0] > -0.01]
+    right = synthetic_mug(0.0, n=800, seed=1)
+    both = handle_zone_mask(seen, right, [1, 0, 0], HANDLE_MAX_RATIO, observed_body=True)
+    assert both.sum() > 50
+    assert both.sum() >= 0.9 * handle_zone_mask(seen, right, [1, 0, 0], HANDLE_MAX_RATIO).sum()
+
+
 def test_a_strip_beyond_any_handle_is_not_the_handle():
     """An occluder's edge standing 3.5 body radii off the axis outweighs a real handle unless the fit is bounded."""
     rng = np.random.default_rng(3)

@@ -1,7 +1,8 @@
 """Stage ``handle`` (metadata ``handle``): the azimuth about a mug's axis from its observed handle
 (``equipose.runtime.handle.resolve_handle``), which makes the pose full 6D (symmetry "none"). Result extras
-``handle_visible`` (a handle was found, enough points lie in the handle zone of the canonical shape, within a
-handle's reach of the body, and at least ``HANDLE_MIN_CLUSTERED`` of them form a surface patch),
+``handle_visible`` (a handle was found, enough points lie in the handle zone — beyond both the canonical shape's
+body and the body the camera sees, within a handle's reach — and at least ``HANDLE_MIN_CLUSTERED`` of them form a
+surface patch),
 ``handle_points``, ``handle_direction_object``, ``handle_fit`` ((share, mass) of the fit that placed the handle, or
 None: ``equipose.core.handles.HandleFit``); a handle not seen sets ``ambiguous``.
 
@@ -39,7 +40,8 @@ class HandleStage(Stage):
     def run(self, state: ObjectState) -> None:
         R, found, fit = resolve_handle(self.direction, state.points, state.rotation, state.translation)
         observed = (np.asarray(state.points, np.float64) - state.translation) @ R          # [N, 3] category frame
-        zone = handle_zone_mask(observed, state.canonical_category, self.direction, HANDLE_MAX_RATIO)   # [N]
+        zone = handle_zone_mask(observed, state.canonical_category, self.direction, HANDLE_MAX_RATIO,
+                                observed_body=True)                                         # [N]
         count = int(np.count_nonzero(zone))
         visible = bool(found and count >= max(HANDLE_MIN_POINTS, HANDLE_MIN_FRACTION * len(observed))
                        and clustered_count(observed, zone) >= HANDLE_MIN_CLUSTERED)
