@@ -33,7 +33,7 @@ HANDLE_MIN_POINTS = 4            # observed points inside the handle zone for th
 HANDLE_MIN_FRACTION = 0.01       # ... and at least this fraction of the observed points
 HANDLE_MIN_CLUSTERED = 3         # ... of which at least this many lie in a cluster (``clustered_count``): a handle is
                                  # a surface, flying pixels at an occluder's edge are scattered
-HANDLE_ZONE_MARGIN = 1.15       # a handle point lies beyond this × the body radius of its height band
+HANDLE_ZONE_MARGIN = 1.15        # a handle point lies beyond this × the body radius of its height band
 HANDLE_MAX_RATIO = 2.6           # radius / body radius a handle reaches at most (training mugs: 1.58–2.45): points
                                  # farther out are something else (an occluder's edge, flying pixels)
 
