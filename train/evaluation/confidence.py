@@ -40,8 +40,8 @@ from equipose.train.evaluation.fit_cli import fit_parser
 
 __all__ = ["RIGHT_DEG", "RIGHT_M", "RIGHT_DIAG", "LYING_EVERY", "UPSIDE_DOWN_EVERY", "PROMPTS", "collect", "view_rest",
            "view_results", "handle_parts", "occluded_views", "collect_modelnet", "fit_logistic", "auroc", "reliability",
-           "summarize", "runner_up_margin", "closed_top_cap", "flag_rows", "grouped_log_loss", "feature_matrix",
-           "main"]
+           "summarize", "runner_up_margin", "closed_top_cap", "choose_flags", "flag_rows", "grouped_log_loss",
+           "feature_matrix", "main"]
 
 RIGHT_DEG = 10.0        # a right pose: rotation error ≤ this (modulo symmetry) ...
 RIGHT_M = 0.02          # ... and centre error ≤ this (metres)
@@ -392,6 +392,12 @@ def open_bottom_cap(rows: list) -> float:
                           OPEN_BOTTOM_WRONG)
 
 
+def choose_flags(fit: list) -> dict:
+    """The ambiguity flags of a ``confidence_calibration`` entry, each chosen on the ``fit`` rows."""
+    return {"runner_up_margin": runner_up_margin(fit), "closed_top_cap": closed_top_cap(fit),
+            "turned_top_cap": turned_top_cap(fit), "open_bottom_cap": open_bottom_cap(fit)}
+
+
 def flag_rows(rows: list, calibration: dict) -> list:
     """Copies of ``rows`` with "ambiguous" set where the confidence stage would flag them under ``calibration``
     (``runner_up_margin``, ``closed_top_cap``, ``turned_top_cap``, ``open_bottom_cap``) before it reads the
@@ -407,11 +413,9 @@ def flag_rows(rows: list, calibration: dict) -> list:
 def calibrate(rows: list, features=CONFIDENCE_FEATURES) -> tuple:
     """(metadata dict for ``confidence_calibration``, held-out summary, the rows as fitted: copies of ``rows``, those
     the stage will flag (``flag_rows``) flagged ``ambiguous``, the held-out ones with "p"). The flags
-    (``runner_up_margin``, ``closed_top_cap``, ``turned_top_cap``, ``open_bottom_cap``) and the features
-    (``choose_features``) are chosen on the fit rows alone; ``rows`` themselves are left as they are."""
-    flags = {"runner_up_margin": runner_up_margin(split_rows(rows)[0]),
-             "closed_top_cap": closed_top_cap(split_rows(rows)[0]),
-             "turned_top_cap": turned_top_cap(split_rows(rows)[0]), "open_bottom_cap": open_bottom_cap(split_rows(rows)[0])}
+    (``choose_flags``) and the features (``choose_features``) are chosen on the fit rows alone; ``rows`` themselves
+    are left as they are."""
+    flags = choose_flags(split_rows(rows)[0])
     rows = flag_rows(rows, flags)
     fit, held = split_rows(rows)
     if not fit or not held:
@@ -489,7 +493,7 @@ def _check(rows: list, model: str, json_path: str | None) -> int:
 
 
 def _refresh_flags(rows: list, model: str, write: bool) -> int:
-    """``--flags-only``: the file's stored calibration with its ``runner_up_margin`` and ``closed_top_cap`` chosen
+    """``--flags-only``: the file's stored calibration with its ambiguity flags (``choose_flags``) chosen
     again on the fit rows (even-numbered shapes); the weights stay as stored."""
     from equipose.core.metadata import decode_metadata
     from equipose.core.model_file import read_metadata_props
@@ -498,8 +502,8 @@ def _refresh_flags(rows: list, model: str, write: bool) -> int:
         raise ConfigError(f"{model} stores no confidence calibration to keep: fit one (drop --flags-only)")
     fit = split_rows(rows)[0]
     meta = {**stored, "features": list(stored["features"]), "weights": [float(w) for w in stored["weights"]],
-            "runner_up_margin": runner_up_margin(fit), "closed_top_cap": closed_top_cap(fit),
-            "turned_top_cap": turned_top_cap(fit), "open_bottom_cap": open_bottom_cap(fit), "flags_chosen_on": f"{len(fit)} rendered occluded tabletop views (even-numbered shapes); weights as fitted"}
+            **choose_flags(fit),
+            "flags_chosen_on": f"{len(fit)} rendered occluded tabletop views (even-numbered shapes); weights as fitted"}
     print(f"{pathlib.Path(model).name}: runner_up_margin {stored.get('runner_up_margin', 0.0)} → "
           f"{meta['runner_up_margin']}, closed_top_cap {stored.get('closed_top_cap', 0.0)} → {meta['closed_top_cap']}, "
           f"turned_top_cap {stored.get('turned_top_cap', 0.0)} → {meta['turned_top_cap']}, "
@@ -519,7 +523,7 @@ def main(argv=None) -> int:
     ap.add_argument("--without", default="", help="comma-separated evidence features to leave out of the fit")
     ap.add_argument("--flags-only", dest="flags_only", action="store_true",
                     help="keep the file's stored weights and only re-choose its ambiguity flags (runner_up_margin, "
-                         "closed_top_cap) on the fit rows")
+                         "closed_top_cap, turned_top_cap, open_bottom_cap) on the fit rows")
     ap.add_argument("--standing-only", dest="standing_only", action="store_true",
                     help="render no open container upside down (the view set up to 0.40)")
     ap.add_argument("--check", action="store_true",
