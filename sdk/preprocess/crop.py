@@ -17,6 +17,7 @@ from scipy.spatial import cKDTree
 
 from equipose.core.errors import ConfigError, DepthDtypeError, EmptyDepthError, RegionError, TooFewPointsError
 from equipose.core.order_statistics import median
+from equipose.preprocess.base import base_mask, facing_cosines
 from equipose.preprocess.plane import find_support_plane, plane_height_terms
 from equipose.preprocess.sampling import MIN_POINTS
 from equipose.preprocess.surfaces import (box_object_cluster, continues_beyond_box, nearest_depth_cluster,
@@ -41,7 +42,8 @@ class CropResult:
         diagnostics: counts after each stage (``region``, ``valid``, ``gated``, ``subsampled``, ``cluster``,
             ``inliers``), and for box crops the chosen ``cluster_depth_m``, the number of depth ``clusters`` large
             enough to be the object and ``occluded_fraction`` (the share of the object's view taken by nearer
-            clusters, dropped).
+            clusters, dropped); with the support plane removed, ``base_points``: the object's base given back from
+            the plane band (counted in ``inliers``).
     """
     points: np.ndarray
     pixels: np.ndarray
@@ -177,6 +179,19 @@ def _above_plane(win, valid, ry, cx, off, plane_height) -> tuple:
 
 
 @njit(cache=True)
+def _plane_band(win, valid, above, ry, cx, off, plane_height):
+    """[h, w] bool: the ``valid`` window pixels not ``above`` and higher than −``plane_height`` above the plane
+    (``plane_height_terms``'s separable terms): the band the plane removal took away."""
+    h, w = win.shape
+    band = np.zeros((h, w), np.bool_)
+    for r in range(h):
+        for c in range(w):
+            if valid[r, c] and not above[r, c] and win[r, c] * np.float32(ry[r] + cx[c]) + off > -plane_height:
+                band[r, c] = True
+    return band
+
+
+@njit(cache=True)
 def _near_plane_heights(win, valid, ry, cx, off, limit) -> np.ndarray:
     """[Q] float32 heights (m) of the ``valid`` window pixels within ``limit`` of the plane (``plane_height_terms``'s
     separable terms): the table around the object, where its depth noise shows."""
@@ -245,7 +260,7 @@ def _backproject(d, rows, cols, K):
 _NUMBER_OPTIONS = {  # option: (lowest allowed, integer?)
     "min_depth": (0.0, False), "max_depth": (0.0, False), "max_points": (MIN_POINTS, True), "outlier_k": (1, True),
     "outlier_std": (0.0, False), "min_points": (1, True), "plane_height": (0.0, False)}
-_FLAG_OPTIONS = ("reject_background", "check_plausible", "remove_support_plane", "prevalidated")
+_FLAG_OPTIONS = ("reject_background", "check_plausible", "remove_support_plane", "keep_base", "prevalidated")
 
 
 def check_crop_options(options: dict) -> dict:
@@ -281,7 +296,7 @@ def crop_points(depth, K, *, box=None, mask=None, depth_unit="mm", image_size=No
                 max_depth: float = 10.0, max_points: int = 4096, reject_background: bool | None = None,
                 outlier_k: int = 8, outlier_std: float = 2.0, min_points: int = MIN_POINTS,
                 check_plausible: bool = True, remove_support_plane: bool | None = None, support_plane=None,
-                plane_height: float | str = "auto", prevalidated: bool = False) -> CropResult:
+                plane_height: float | str = "auto", keep_base: bool = True, prevalidated: bool = False) -> CropResult:
     """Depth frame + box/mask → cleaned object points in metres.
 
     Convention: ``depth`` [H, W] in ``depth_unit``; ``K`` [3, 3] for ``image_size`` (W, H) or the frame itself;
@@ -290,6 +305,7 @@ def crop_points(depth, K, *, box=None, mask=None, depth_unit="mm", image_size=No
 
     Stages: validation → region → invalid-depth removal → depth gating [``min_depth``, ``max_depth``] m → support
     plane removal (points less than ``plane_height`` m above the frame's dominant plane, or beyond it, are dropped;
+    with ``keep_base`` the object's own base in that band is given back at the end, ``equipose.preprocess.base``;
     "auto": ``PLANE_NOISE_SIGMAS`` × the depth noise of the table pixels in the box, 6–12 mm, ``auto_plane_height``;
     ``support_plane`` = precomputed (normal, offset) from ``find_support_plane``; default on for a box without a
     mask, and skipped when the frame has no dominant plane or too few points would remain) → subsampling to at most
@@ -339,6 +355,7 @@ def crop_points(depth, K, *, box=None, mask=None, depth_unit="mm", image_size=No
                                 f"≥ {min_points}); enlarge the box/mask or change min_depth/max_depth")
     if remove_support_plane is None:
         remove_support_plane = box is not None and mask is None
+    band = None                                                                 # (pixels, plane, height) removed
     if remove_support_plane:
         plane = support_plane if support_plane is not None else find_support_plane(d, Kf)
         if plane is not None:
@@ -349,6 +366,7 @@ def crop_points(depth, K, *, box=None, mask=None, depth_unit="mm", image_size=No
             diag["plane_height"] = round(float(plane_height), 5)
             above, n_above = _above_plane(win, valid, *terms, np.float32(plane_height))  # [h, w], count
             if n_above >= min_points:
+                band = (_plane_band(win, valid, above, *terms, np.float32(plane_height)), plane, float(plane_height))
                 valid, n_valid = above, int(n_above)
                 diag["above_plane"] = n_valid
     s = 1 if n_valid <= max_points else int(math.ceil(math.sqrt(n_valid / max_points)))   # grid pitch, deterministic
@@ -391,6 +409,15 @@ def crop_points(depth, K, *, box=None, mask=None, depth_unit="mm", image_size=No
         else:
             keep = statistical_outlier_mask(pts, k=outlier_k, std_ratio=outlier_std)  # [P]
         pts, rows, cols = pts[keep], rows[keep], cols[keep]
+    if keep_base and band is not None and s and len(pts):                       # the object's own base, given back
+        b_rows, b_cols = _lattice_pixels(band[0], s, y0, x0)                    # [Q], [Q] on the same lattice
+        b_pts = _backproject(d, b_rows, b_cols, Kf)                             # [Q, 3] m
+        spacing = median(pts[:, 2]) * s / float(Kf[1, 1])                       # m between lattice points
+        facing = facing_cosines(d, b_rows, b_cols, Kf, s, np.asarray(band[1][0], np.float64))  # [Q]
+        base = base_mask(pts, b_pts, band[1], band[2], spacing, facing)         # [Q]
+        diag["base_points"] = int(base.sum())
+        pts, rows, cols = (np.concatenate([pts, b_pts[base]]), np.concatenate([rows, b_rows[base]]),
+                           np.concatenate([cols, b_cols[base]]))
     diag["inliers"] = int(len(pts))
     if len(pts) < min_points:
         raise TooFewPointsError(f"only {len(pts)} points survived the crop (need ≥ {min_points}; stages: {diag}); "

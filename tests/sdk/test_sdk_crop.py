@@ -411,3 +411,51 @@ def test_surface_percentile_by_selection_equals_the_sorted_one(rng):
         v = rng.normal(size=n)
         for q in (0.0, 2.0, 50.0, 95.0, 98.0, 100.0):
             assert selected_percentile(v.copy(), q) == sorted_percentile(np.sort(v), q), (n, q)
+
+
+def test_box_crop_gives_a_standing_can_its_base_back(data_root):
+    """Rendered cans standing on the table (no occluder): the plane removal takes the can's bottom with the table;
+    the base given back lies on the can (within 2 px of its mask) and brings the crop's lowest point down to the
+    mask crop's. With ``keep_base=False`` (v0.51's crop) the lowest point stays a band higher."""
+    from scipy.ndimage import distance_transform_edt
+    from equipose.preprocess import depth_to_metres, find_support_plane
+    from equipose.train.data.occluded import render_occluded
+    from equipose.train.data.tabletop import tabletop_sources
+    src = tabletop_sources(data_root, "can", "test")
+    near, given, gap_with, gap_without = [], [], [], []
+    for v in range(8):
+        view = render_occluded(src[v % len(src)][1], np.random.default_rng([3, v]), occluder=0.0)
+        plane = find_support_plane(depth_to_metres(view.depth, "mm"), view.K)
+        n, off = np.asarray(plane[0], np.float64), float(plane[1])
+        box = crop_points(view.depth, view.K, box=view.box, support_plane=plane)
+        ref = crop_points(view.depth, view.K, mask=view.mask)
+        k = box.diagnostics["base_points"]
+        given.append(k)
+        if k:
+            rows, cols = box.pixels[-k:].T
+            near.append(np.mean(distance_transform_edt(~view.mask)[rows, cols] <= 2.0))
+        low = float((ref.points @ n + off).min())
+        gap_with.append(float((box.points @ n + off).min()) - low)
+        plain = crop_points(view.depth, view.K, box=view.box, support_plane=plane, keep_base=False)
+        assert "base_points" not in plain.diagnostics
+        gap_without.append(float((plain.points @ n + off).min()) - low)
+    assert np.mean(np.array(given) > 0) >= 0.75
+    assert np.mean(near) > 0.95
+    assert np.median(gap_with) < 0.003 < np.median(gap_without) - 0.002
+
+
+def test_base_mask_needs_the_object_to_reach_the_band():
+    """A wall standing on the plane gets the band points under it, not the table in front or a wall hanging above."""
+    from equipose.preprocess.base import base_mask
+    plane = (np.array([0.0, 0.0, 1.0]), 0.0)                                    # z up, table at z = 0
+    a = np.linspace(0.0, np.pi, 60)
+    wall = np.concatenate([np.stack([0.04 * np.cos(a), 0.04 * np.sin(a), np.full(60, h)], 1)
+                           for h in np.arange(0.008, 0.1, 0.004)])              # a half cylinder from 8 mm up
+    under = np.stack([0.04 * np.cos(a), 0.04 * np.sin(a), np.full(60, 0.004)], 1)            # its base in the band
+    table = np.stack([0.06 * np.cos(a), 0.06 * np.sin(a), np.full(60, 0.0)], 1)              # 2 cm in front
+    keep = base_mask(wall, np.concatenate([under, table]), plane, 0.008, spacing=0.003)
+    assert keep[:60].all() and not keep[60:].any()
+    floating = wall + [0.0, 0.0, 0.03]                                          # its lowest point 38 mm up
+    assert not base_mask(floating, under, plane, 0.008, spacing=0.003).any()
+    facing_up = np.ones(60)                                                     # the depth surface there faces up
+    assert not base_mask(wall, under, plane, 0.008, spacing=0.003, facing=facing_up).any()
