@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import numpy as np
 from numba import njit
-from scipy.spatial import cKDTree
 
 __all__ = ["base_mask", "facing_cosines", "BASE_SLICE_M", "BASE_GAP_M", "BASE_REACH_SPACINGS", "BASE_MIN_REACH_M",
            "BASE_MAX_UP_DEG"]
@@ -58,13 +57,29 @@ def facing_cosines(d, rows, cols, K, step, normal) -> np.ndarray:
     return out
 
 
-def _foot(points: np.ndarray, normal: np.ndarray) -> np.ndarray:
-    """[P, 2] coordinates of ``points`` [P, 3] projected along ``normal`` onto a plane (any in-plane basis)."""
+def _plane_basis(normal: np.ndarray) -> np.ndarray:
+    """[2, 3] two unit vectors spanning the plane orthogonal to the unit ``normal`` [3]."""
     a = np.array([1.0, 0.0, 0.0]) if abs(normal[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
-    e1 = np.cross(normal, a)
+    e1 = a - (a @ normal) * normal
     e1 /= np.linalg.norm(e1)
-    e2 = np.cross(normal, e1)
-    return np.stack([points @ e1, points @ e2], 1)
+    e2 = np.array([normal[1] * e1[2] - normal[2] * e1[1], normal[2] * e1[0] - normal[0] * e1[2],
+                   normal[0] * e1[1] - normal[1] * e1[0]])                      # normal × e1
+    return np.stack([e1, e2])
+
+
+@njit(cache=True)
+def _within_reach(wall_feet, band_feet, reach) -> np.ndarray:
+    """[Q] bool: ``band_feet`` [Q, 2] within ``reach`` of any of ``wall_feet`` [W, 2] (brute force: W, Q ≤ a few
+    hundred)."""
+    r2 = reach * reach
+    out = np.zeros(len(band_feet), np.bool_)
+    for q in range(len(band_feet)):
+        for w in range(len(wall_feet)):
+            dx, dy = band_feet[q, 0] - wall_feet[w, 0], band_feet[q, 1] - wall_feet[w, 1]
+            if dx * dx + dy * dy <= r2:
+                out[q] = True
+                break
+    return out
 
 
 def base_mask(object_points: np.ndarray, band_points: np.ndarray, plane, plane_height: float,
@@ -82,10 +97,10 @@ def base_mask(object_points: np.ndarray, band_points: np.ndarray, plane, plane_h
     low = float(h.min())
     if low > plane_height + BASE_GAP_M:
         return np.zeros(len(band_points), bool)
-    wall = object_points[h <= low + BASE_SLICE_M]                               # [W, 3] the lowest slice
+    basis = _plane_basis(n).T                                                   # [3, 2]
+    wall = object_points[h <= low + BASE_SLICE_M] @ basis                       # [W, 2] the lowest slice's feet
     reach = max(BASE_MIN_REACH_M, BASE_REACH_SPACINGS * float(spacing))
-    d, _ = cKDTree(_foot(wall, n)).query(_foot(np.asarray(band_points, np.float64), n), distance_upper_bound=reach)
-    keep = np.isfinite(d)                                                       # [Q]
+    keep = _within_reach(wall, np.asarray(band_points, np.float64) @ basis, reach)   # [Q]
     if facing is not None:
         keep &= np.asarray(facing) < np.cos(np.radians(BASE_MAX_UP_DEG))
     return keep
