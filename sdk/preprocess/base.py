@@ -33,7 +33,7 @@ BASE_MAX_UP_DEG = 45.0       # a surface whose normal lies within this of the pl
 def facing_cosines(d, rows, cols, K, step, normal) -> np.ndarray:
     """[Q] |cos| of the angle between ``normal`` [3] and the depth surface at the pixels (``rows``, ``cols``) [Q] of
     ``d`` [H, W] metres (0 = invalid), from central differences ``step`` pixels wide; 1 (facing up, not the object's)
-    where a neighbour is missing or the surface is degenerate."""
+    where a neighbour is missing or the surface is degenerate (the pinhole's skew left out: a direction only)."""
     H, W = d.shape
     out = np.ones(len(rows))
     fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
