@@ -19,6 +19,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from equipose.core.nearest import nearest_distances
+
 __all__ = ["base_mask", "facing_cosines", "BASE_SLICE_M", "BASE_GAP_M", "BASE_REACH_SPACINGS", "BASE_MIN_REACH_M",
            "BASE_MAX_UP_DEG"]
 
@@ -67,21 +69,6 @@ def _plane_basis(normal: np.ndarray) -> np.ndarray:
     return np.stack([e1, e2])
 
 
-@njit(cache=True)
-def _within_reach(wall_feet, band_feet, reach) -> np.ndarray:
-    """[Q] bool: ``band_feet`` [Q, 2] within ``reach`` of any of ``wall_feet`` [W, 2] (brute force: W, Q ≤ a few
-    hundred)."""
-    r2 = reach * reach
-    out = np.zeros(len(band_feet), np.bool_)
-    for q in range(len(band_feet)):
-        for w in range(len(wall_feet)):
-            dx, dy = band_feet[q, 0] - wall_feet[w, 0], band_feet[q, 1] - wall_feet[w, 1]
-            if dx * dx + dy * dy <= r2:
-                out[q] = True
-                break
-    return out
-
-
 def base_mask(object_points: np.ndarray, band_points: np.ndarray, plane, plane_height: float,
               spacing: float, facing=None) -> np.ndarray:
     """[Q] bool: which ``band_points`` [Q, 3] (the box's pixels within ``plane_height`` m of ``plane``) continue the
@@ -97,10 +84,10 @@ def base_mask(object_points: np.ndarray, band_points: np.ndarray, plane, plane_h
     low = float(h.min())
     if low > plane_height + BASE_GAP_M:
         return np.zeros(len(band_points), bool)
-    basis = _plane_basis(n).T                                                   # [3, 2]
-    wall = object_points[h <= low + BASE_SLICE_M] @ basis                       # [W, 2] the lowest slice's feet
+    basis = np.c_[_plane_basis(n).T, np.zeros(3)]                               # [3, 3]: feet in the plane, z 0
+    wall = object_points[h <= low + BASE_SLICE_M] @ basis                       # [W, 3] the lowest slice's feet
     reach = max(BASE_MIN_REACH_M, BASE_REACH_SPACINGS * float(spacing))
-    keep = _within_reach(wall, np.asarray(band_points, np.float64) @ basis, reach)   # [Q]
+    keep = nearest_distances(wall, np.asarray(band_points, np.float64) @ basis) <= reach   # [Q]
     if facing is not None:
         keep &= np.asarray(facing) < np.cos(np.radians(BASE_MAX_UP_DEG))
     return keep

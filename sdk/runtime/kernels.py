@@ -46,7 +46,6 @@ def load_kernels() -> float:
     from equipose.core.normals import point_normals
     from equipose.core.opening import top_closure
     from equipose.core.scores import hypothesis_scores
-    from equipose.preprocess.base import base_mask
     from equipose.preprocess.crop import crop_points, organized_outlier_mask
     from equipose.preprocess.plane import find_support_plane, fit_plane_ransac
     from equipose.preprocess.sampling import prepare_points
@@ -89,7 +88,6 @@ def load_kernels() -> float:
     plane = (np.array([0.0, 0.0, -1.0]), 0.9)                                   # the wall
     for region in ({"box": (8, 8, 48, 32)}, {"box": (8, 8, 48, 32), "mask": depth < 800}, {"mask": depth < 800}):
         crop_points(depth, Kd, **region, support_plane=plane, max_points=256, min_points=8)
-    base_mask(np.c_[x[:, :2], 0.01 * np.abs(x[:, 2])], x, (np.array([0.0, 0.0, 1.0]), 0.0), 0.01, 0.003)  # its reach test
     mirror_plane(x, [1.0, 0.0, 0.0])
     point_normals(x)
     fit_handle(rng.normal(size=(60, 3)))

@@ -5,11 +5,11 @@ Usage: python tools/bench/label_audit.py --model sdk/models/airplane-complete.on
 
 ModelNet's category frames were made consistent with the 24 rotations of the cube (shared/data/SOURCES.md), so an
 instance whose mesh was yawed by some other angle keeps that yaw in its label. Airplanes, cars, chairs and sofas are
-mirror-symmetric about a vertical plane of the frame (normal +x: the yz-plane; sofas +y); this script finds each test cloud's own mirror plane among
-the planes through its centroid with a normal in the xy-plane (yaw about +z, degrees, 1° grid over ±90° and then
+mirror-symmetric about a vertical plane of the frame (normal +x: the yz-plane; sofas +y); this script finds each
+test cloud's own mirror plane among the planes through its centroid with a normal in the xy-plane (yaw about +z, degrees, 1° grid over ±90° and then
 0.1° steps; score: mean nearest-neighbour distance from the mirrored cloud to the cloud, model units).
 
-An instance has a **mirror label** when its own mirror plane is ≥ ``--min-yaw`` off the yz-plane and clearly
+An instance has a **mirror label** when its own mirror plane is ≥ ``--min-yaw`` off the frame's and clearly
 better (score at its yaw < ``MIRROR_CLEAR`` × the score at 0): a fact of the data alone, no model involved.
 
 The model then runs through ``equipose.PoseEstimator`` on the test set of ``equipose eval`` (complete: 5 rotations
@@ -35,7 +35,7 @@ from equipose.train.evaluation.evaluate import SUSPECT_TEST_INSTANCES, _instance
 from equipose.train.data.modelnet import default_data_root, load_modelnet
 
 MIRROR_NORMAL_YAW = {"airplane": 0.0, "car": 0.0, "chair": 0.0, "sofa": 90.0}   # the frame's mirror normal, ° about z
-MIRROR_CLEAR = 0.75          # a mirror label's plane must score below this share of the yz-plane's
+MIRROR_CLEAR = 0.75          # a mirror label's plane must score below this share of the frame's
 
 
 def mirror_yaw(cloud: np.ndarray, base: float = 0.0) -> tuple:
@@ -65,6 +65,9 @@ def main(argv=None) -> int:
     ap.add_argument("--min-yaw", type=float, default=3.0, help="degrees: smallest mirror yaw called a label error")
     ap.add_argument("--json", help="write the per-instance table here")
     a = ap.parse_args(argv)
+    if a.category not in MIRROR_NORMAL_YAW:
+        raise SystemExit(f"no mirror plane known for {a.category!r}: one of {sorted(MIRROR_NORMAL_YAW)}")
+    base = MIRROR_NORMAL_YAW[a.category]
 
     root = default_data_root()
     from equipose import PoseEstimator
@@ -79,19 +82,16 @@ def main(argv=None) -> int:
     test_clouds, test_ids = load_modelnet(root, a.category, "test", None)
     clouds = {nm: np.asarray(c, np.float64) for c, nm in zip(test_clouds, test_ids)}
 
-    if a.category not in MIRROR_NORMAL_YAW:
-        raise SystemExit(f"no mirror plane known for {a.category!r}: one of {sorted(MIRROR_NORMAL_YAW)}")
-    base = MIRROR_NORMAL_YAW[a.category]
     suspects = set(SUSPECT_TEST_INSTANCES.get(a.category, ()))
     rows = []
     for k in np.unique(inst):
         name = names[k]
         views = np.flatnonzero(inst == k)
-        E = np.einsum("sji,sjk->sik", R_gt[views], R[views])                           # [V, 3, 3] R_trueᵀ R_pred
-        mean = Rotation.from_matrix(E).mean()
-        spread = float(np.max((Rotation.from_matrix(E) * mean.inv()).magnitude()) * 180 / np.pi)
+        E = Rotation.from_matrix(np.einsum("sji,sjk->sik", R_gt[views], R[views]))   # [V] R_trueᵀ R_pred
+        mean = E.mean()
+        spread = float(np.degrees(np.max((E * mean.inv()).magnitude())))
         yaw, s_yaw, s_zero = mirror_yaw(clouds[name], base)
-        to_yaw = (Rotation.from_matrix(E) * Rotation.from_euler("z", yaw, degrees=True).inv()).magnitude()  # [V] rad
+        to_yaw = (E * Rotation.from_euler("z", yaw, degrees=True).inv()).magnitude()  # [V] rad
         rows.append({"instance": name, "id": name.split("_")[-1], "views": int(len(views)),
                      "median_error_deg": float(np.median(err[views])),
                      "error_rotvec_deg": [round(float(v), 2) for v in mean.as_rotvec(degrees=True)],
