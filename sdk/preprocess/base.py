@@ -59,16 +59,6 @@ def facing_cosines(d, rows, cols, K, step, normal) -> np.ndarray:
     return out
 
 
-def _plane_basis(normal: np.ndarray) -> np.ndarray:
-    """[2, 3] two unit vectors spanning the plane orthogonal to the unit ``normal`` [3]."""
-    a = np.array([1.0, 0.0, 0.0]) if abs(normal[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
-    e1 = a - (a @ normal) * normal
-    e1 /= np.linalg.norm(e1)
-    e2 = np.array([normal[1] * e1[2] - normal[2] * e1[1], normal[2] * e1[0] - normal[0] * e1[2],
-                   normal[0] * e1[1] - normal[1] * e1[0]])                      # normal × e1
-    return np.stack([e1, e2])
-
-
 def base_mask(object_points: np.ndarray, band_points: np.ndarray, plane, plane_height: float,
               spacing: float, facing=None) -> np.ndarray:
     """[Q] bool: which ``band_points`` [Q, 3] (the box's pixels within ``plane_height`` m of ``plane``) continue the
@@ -84,10 +74,12 @@ def base_mask(object_points: np.ndarray, band_points: np.ndarray, plane, plane_h
     low = float(h.min())
     if low > plane_height + BASE_GAP_M:
         return np.zeros(len(band_points), bool)
-    basis = np.c_[_plane_basis(n).T, np.zeros(3)]                               # [3, 3]: feet in the plane, z 0
-    wall = object_points[h <= low + BASE_SLICE_M] @ basis                       # [W, 3] the lowest slice's feet
+    b = np.asarray(band_points, np.float64)                                    # [Q, 3]
+    wall = object_points[h <= low + BASE_SLICE_M]                               # [W, 3] the lowest slice
+    feet_wall = wall - np.outer(wall @ n, n)                                    # [W, 3] along the normal onto n·p = 0
+    feet_band = b - np.outer(b @ n, n)                                          # [Q, 3]
     reach = max(BASE_MIN_REACH_M, BASE_REACH_SPACINGS * float(spacing))
-    keep = nearest_distances(wall, np.asarray(band_points, np.float64) @ basis) <= reach   # [Q]
+    keep = nearest_distances(feet_wall, feet_band) <= reach                     # [Q]
     if facing is not None:
         keep &= np.asarray(facing) < np.cos(np.radians(BASE_MAX_UP_DEG))
     return keep

@@ -164,31 +164,24 @@ def _window_mask(win, region, min_depth, max_depth) -> tuple:
 
 
 @njit(cache=True)
-def _above_plane(win, valid, ry, cx, off, plane_height) -> tuple:
+def _split_at_plane(win, valid, ry, cx, off, plane_height) -> tuple:
     """(above [h, w] bool: the ``valid`` window pixels higher than ``plane_height`` above the plane whose heights
-    ``plane_height_terms`` separates (ry [h], cx [w], off), computed in float32; their count)."""
+    ``plane_height_terms`` separates (ry [h], cx [w], off), computed in float32; their count; band [h, w] bool: the
+    other ``valid`` pixels higher than −``plane_height``, the band the plane removal takes away)."""
     h, w = win.shape
     above = np.zeros((h, w), np.bool_)
+    band = np.zeros((h, w), np.bool_)
     n = 0
     for r in range(h):
         for c in range(w):
-            if valid[r, c] and win[r, c] * np.float32(ry[r] + cx[c]) + off > plane_height:
-                above[r, c] = True
-                n += 1
-    return above, n
-
-
-@njit(cache=True)
-def _plane_band(win, valid, above, ry, cx, off, plane_height):
-    """[h, w] bool: the ``valid`` window pixels not ``above`` and higher than −``plane_height`` above the plane
-    (``plane_height_terms``'s separable terms): the band the plane removal took away."""
-    h, w = win.shape
-    band = np.zeros((h, w), np.bool_)
-    for r in range(h):
-        for c in range(w):
-            if valid[r, c] and not above[r, c] and win[r, c] * np.float32(ry[r] + cx[c]) + off > -plane_height:
-                band[r, c] = True
-    return band
+            if valid[r, c]:
+                z = win[r, c] * np.float32(ry[r] + cx[c]) + off
+                if z > plane_height:
+                    above[r, c] = True
+                    n += 1
+                elif z > -plane_height:
+                    band[r, c] = True
+    return above, n, band
 
 
 @njit(cache=True)
@@ -355,7 +348,7 @@ def crop_points(depth, K, *, box=None, mask=None, depth_unit="mm", image_size=No
                                 f"≥ {min_points}); enlarge the box/mask or change min_depth/max_depth")
     if remove_support_plane is None:
         remove_support_plane = box is not None and mask is None
-    band = None                                                                 # (pixels, plane, height) removed
+    band = None                                           # with keep_base: (band pixels, plane, height) removed
     if remove_support_plane:
         plane = support_plane if support_plane is not None else find_support_plane(d, Kf)
         if plane is not None:
@@ -364,9 +357,10 @@ def crop_points(depth, K, *, box=None, mask=None, depth_unit="mm", image_size=No
                 plane_height = auto_plane_height(_near_plane_heights(win, valid, *terms,
                                                                      np.float32(PLANE_HEIGHT_RANGE[1])))
             diag["plane_height"] = round(float(plane_height), 5)
-            above, n_above = _above_plane(win, valid, *terms, np.float32(plane_height))  # [h, w], count
+            above, n_above, in_band = _split_at_plane(win, valid, *terms, np.float32(plane_height))  # [h, w] ×2
             if n_above >= min_points:
-                band = (_plane_band(win, valid, above, *terms, np.float32(plane_height)), plane, float(plane_height))
+                if keep_base:
+                    band = (in_band, plane, float(plane_height))
                 valid, n_valid = above, int(n_above)
                 diag["above_plane"] = n_valid
     s = 1 if n_valid <= max_points else int(math.ceil(math.sqrt(n_valid / max_points)))   # grid pitch, deterministic
@@ -409,7 +403,7 @@ def crop_points(depth, K, *, box=None, mask=None, depth_unit="mm", image_size=No
         else:
             keep = statistical_outlier_mask(pts, k=outlier_k, std_ratio=outlier_std)  # [P]
         pts, rows, cols = pts[keep], rows[keep], cols[keep]
-    if keep_base and band is not None and s and len(pts):                       # the object's own base, given back
+    if band is not None and s and len(pts):                                     # the object's own base, given back
         b_rows, b_cols = _lattice_pixels(band[0], s, y0, x0)                    # [Q], [Q] on the same lattice
         b_pts = _backproject(d, b_rows, b_cols, Kf)                             # [Q, 3] m
         spacing = median(pts[:, 2]) * s / float(Kf[1, 1])                       # m between lattice points
