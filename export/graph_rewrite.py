@@ -5,6 +5,10 @@ graph inputs that the runtime computes (``equipose.core.kernel_weights``; format
 they cost about 75 small nodes per run (offsets, squared norms, a concatenation, a transpose and a MatMul per layer,
 and the batch offsets of the row indices), each one an onnxruntime kernel launch.
 
+``class_weights_as_inputs``: the same cut one step later (format 4): the graph's inputs are the kernel weights
+already summed per kernel class, in the layout of the MatMul that reads them, so each layer's constant [60, 13] class
+MatMul and the reshapes, transpose and sum after it leave the graph (``equipose.core.kernel_weights.class_inputs``).
+
 ``drop_normalised_biases``: a layer's bias that an InstanceNormalization cancels. Every convolution of the backbone
 adds a per-channel bias and then normalises each channel over its points and rotations (``layers.SeparableSO3Block``):
 the normalisation subtracts the channel's mean, bias included, so the bias has no effect on any output. In the graph
@@ -25,12 +29,14 @@ import numpy as np
 from equipose.core.errors import ModelFormatError
 from equipose.models.model_io import read_model_file, write_model_file
 
-__all__ = ["drop_normalised_biases", "kernel_weights_as_inputs", "extract_graph", "rewrite_model",
-           "rewrite_model_file", "max_output_difference"]
+__all__ = ["drop_normalised_biases", "kernel_weights_as_inputs", "class_weights_as_inputs", "extract_graph",
+           "rewrite_model", "rewrite_model_file", "max_output_difference"]
 
 _LAYOUT_OPS = ("Reshape", "Transpose")          # ops that move values without mixing channels' sums
+_CLASS_CHAIN_OPS = ("ReduceSum", "Reshape", "Transpose")   # what follows a class MatMul up to its feature MatMul
 _MAX_HOPS = 6
 FP32_ATOL = 1e-4                                # outputs of a rewritten fp32 graph (model units)
+CLASS_LAYERS = (0,)                             # layers fed class weights by default (docs/benchmarks.md, v0.53)
 INT8_ATOL = 0.1                                 # int8: activations are re-quantised per call, a rounding can flip
 
 
@@ -198,6 +204,91 @@ def kernel_weights_as_inputs(proto) -> dict:
     return cut
 
 
+def _class_chain_end(name: str, users: dict, outputs: set) -> str:
+    """The last value of the single-consumer chain of ``_CLASS_CHAIN_OPS`` that starts at ``name``."""
+    while name not in outputs:
+        nxt = users.get(name, [])
+        if len(nxt) != 1 or nxt[0].op_type not in _CLASS_CHAIN_OPS:
+            return name
+        name = nxt[0].output[0]
+    return name
+
+
+def _static_shape(vi) -> tuple:
+    """A value's shape, symbolic dims as None."""
+    return tuple(d.dim_value if d.HasField("dim_value") else None for d in vi.type.tensor_type.shape.dim)
+
+
+def class_weights_as_inputs(proto, layers=None) -> dict:
+    """Cut a format-3 graph one step later for the ``layers`` (indices; None: all), at their class-summed kernel
+    weights: these become the inputs ``class_weights_<l>`` (``equipose.core.kernel_weights``: layer 0 [batch, P2,
+    12, 5], layer l ≥ 1 [12, batch · P2, 5, nn]) in place of ``kernel_weights_<l>``, the ``neighbour_rows_<l>``
+    stay, and ``equipose_format`` becomes 4. Layers already cut and graphs of other formats are left as they are.
+    Returns {input name: the graph value it replaced}.
+
+    Each ``kernel_weights_<l>`` must be read by one MatMul with the constant ``CLASS_MATRIX``; the cut follows it
+    through ReduceSum / Reshape / Transpose to the value the next op reads, whose inferred shape must be the layout
+    above."""
+    import onnx
+    from onnx import TensorProto, helper, numpy_helper, shape_inference
+
+    from equipose.core.kernel_weights import (CLASS_MATRIX, KERNEL_CLASSES, VERTICES, class_name,
+                                              kernel_input_names, weights_name)
+    from equipose.core.presets import ModelConfig
+    from equipose.runtime.session import INPUT_NAME
+
+    meta = {p.key: p.value for p in proto.metadata_props}
+    if meta.get("equipose_format") not in ("3", "4") or "model_config" not in meta:
+        return {}
+    cfg = ModelConfig.from_dict(json.loads(meta["model_config"]))
+    graph = proto.graph
+    given = {i.name: i for i in graph.input}
+    todo = [i for i in (range(len(cfg.layers)) if layers is None else layers) if weights_name(i) in given]
+    if not todo:
+        return {}
+    inferred = shape_inference.infer_shapes(proto)
+    shapes = {vi.name: _static_shape(vi) for vi in list(inferred.graph.value_info) + list(inferred.graph.input)}
+    inits = {t.name: t for t in graph.initializer}
+    users = _consumers(graph)
+    outputs = {o.name for o in graph.output}
+    cut, types = {}, {}
+    for layer in todo:
+        L, name = cfg.layers[layer], weights_name(layer)
+        mm = users.get(name, [])
+        if len(mm) != 1 or mm[0].op_type != "MatMul" or mm[0].input[1] != name or mm[0].input[0] not in inits or \
+                not np.array_equal(numpy_helper.to_array(inits[mm[0].input[0]]), CLASS_MATRIX):
+            raise ModelFormatError(f"{name} is not read by one MatMul with the kernel-class matrix; not an equipose "
+                                   "format-3 quotient graph")
+        end = _class_chain_end(mm[0].output[0], users, outputs)
+        if layer == 0:
+            want = (None, L.points_out, VERTICES, KERNEL_CLASSES)
+            dims = ["batch", L.points_out, VERTICES, KERNEL_CLASSES]
+        else:
+            want = (VERTICES, None, KERNEL_CLASSES, L.neighbours)
+            dims = [VERTICES, f"batch_x_{L.points_out}", KERNEL_CLASSES, L.neighbours]
+        if shapes.get(end) != want:
+            raise ModelFormatError(f"layer {layer}: the class weights {end!r} have shape {shapes.get(end)}, expected "
+                                   f"{want}; not an equipose format-3 quotient graph")
+        cut[class_name(layer)] = end
+        types[class_name(layer)] = helper.make_tensor_value_info(class_name(layer), TensorProto.FLOAT, dims)
+    rename = {old: new for new, old in cut.items()}
+    for node in graph.node:
+        node.input[:] = [rename.get(n, n) for n in node.input]
+        node.output[:] = [rename.get(n, n) for n in node.output]
+    kept = [vi for vi in graph.value_info if vi.name not in rename]
+    del graph.value_info[:]
+    graph.value_info.extend(kept + list(types.values()))
+    classes = {i for i in range(len(cfg.layers)) if class_name(i) in given or class_name(i) in cut}
+    order = kernel_input_names(cfg.layers, classes)
+    sub = extract_graph(proto, [INPUT_NAME] + order, [o.name for o in graph.output], {**meta, "equipose_format": "4"})
+    del sub.graph.input[:]
+    sub.graph.input.extend([given[INPUT_NAME]] + [types[n] if n in types else given[n] for n in order])
+    del sub.graph.value_info[:]
+    onnx.checker.check_model(sub, full_check=True)
+    proto.CopyFrom(sub)
+    return cut
+
+
 def extract_graph(proto, inputs: list, outputs: list, meta: dict):
     """The part of ``proto``'s graph from ``inputs`` to ``outputs`` (onnx's ``Extractor``) as a model with
     ``proto``'s IR version, producer, doc string and opsets, and the metadata ``meta`` ({key: str})."""
@@ -213,9 +304,11 @@ def extract_graph(proto, inputs: list, outputs: list, meta: dict):
     return sub
 
 
-def rewrite_model(proto, *, kernel_inputs: bool = True) -> dict:
+def rewrite_model(proto, *, kernel_inputs: bool = True, class_layers=CLASS_LAYERS) -> dict:
     """Every rewrite of this module on ``proto`` (in place, metadata entry ``dropped_biases`` merged); returns
-    {rewrite: what it removed}. ``kernel_inputs=False`` keeps a format-2 graph's neighbourhood inputs."""
+    {rewrite: what it removed}. ``kernel_inputs=False`` keeps a format-2 graph's neighbourhood inputs;
+    ``class_layers``: the layers whose kernel weights enter summed per class (``class_weights_as_inputs``; () stops
+    at format 3)."""
     dropped = drop_normalised_biases(proto)
     if dropped:
         entry = next((p for p in proto.metadata_props if p.key == "dropped_biases"), None)
@@ -223,7 +316,8 @@ def rewrite_model(proto, *, kernel_inputs: bool = True) -> dict:
             entry = proto.metadata_props.add(key="dropped_biases", value="{}")
         entry.value = json.dumps({**json.loads(entry.value), **dropped}, sort_keys=True)
     cut = kernel_weights_as_inputs(proto) if kernel_inputs else {}
-    return {"drop_normalised_biases": dropped, "kernel_weights_as_inputs": cut}
+    classes = class_weights_as_inputs(proto, class_layers) if kernel_inputs and class_layers else {}
+    return {"drop_normalised_biases": dropped, "kernel_weights_as_inputs": cut, "class_weights_as_inputs": classes}
 
 
 def max_output_difference(before, after, batch: int = 2, seed: int = 0) -> float:
@@ -247,19 +341,20 @@ def max_output_difference(before, after, batch: int = 2, seed: int = 0) -> float
     return max(float(np.max(np.abs(outs[0][k] - outs[1][k]))) for k in outs[0])
 
 
-def rewrite_model_file(path, out=None, atol: float | None = None) -> dict:
+def rewrite_model_file(path, out=None, atol: float | None = None, class_layers=CLASS_LAYERS) -> dict:
     """Rewrite an exported model file (fp32 or int8) and write it to ``out`` (default: in place), metadata kept.
 
     Checks the rewritten graph against the original on random inputs: the largest output difference must stay
     within ``atol`` (default ``FP32_ATOL``, ``INT8_ATOL`` for an int8 file), else ``ModelFormatError`` and nothing is
-    written. Returns {"removed": {rewrite: what it removed}, "max_abs_diff": float}."""
+    written. ``class_layers`` as in ``rewrite_model``. Returns {"removed": {rewrite: what it removed},
+    "max_abs_diff": float}."""
     import onnx
     path = pathlib.Path(path)
     out = path if out is None else pathlib.Path(out)
     original = read_model_file(path)
     rewritten = onnx.ModelProto()
     rewritten.CopyFrom(original)
-    removed = rewrite_model(rewritten)
+    removed = rewrite_model(rewritten, class_layers=class_layers)
     diff = max_output_difference(original, rewritten) if any(removed.values()) else 0.0
     int8 = {p.key: p.value for p in original.metadata_props}.get("precision") == "int8"
     limit = (INT8_ATOL if int8 else FP32_ATOL) if atol is None else float(atol)
@@ -276,9 +371,13 @@ def main(argv=None) -> int:
     import argparse
     ap = argparse.ArgumentParser(prog="python -m equipose.export.graph_rewrite", description=main.__doc__)
     ap.add_argument("files", nargs="+", help="exported .onnx files (fp32 or int8)")
+    ap.add_argument("--class-layers", default=",".join(map(str, CLASS_LAYERS)),
+                    help="layers whose kernel weights enter summed per kernel class (comma-separated indices, '' for "
+                         "none; default %(default)s)")
     args = ap.parse_args(argv)
+    class_layers = tuple(int(i) for i in args.class_layers.split(",") if i.strip())
     for f in args.files:
-        res = rewrite_model_file(f)
+        res = rewrite_model_file(f, class_layers=class_layers)
         counts = ", ".join(f"{k} {len(v)}" for k, v in res["removed"].items())
         print(f"{f}: removed {counts}; max output difference {res['max_abs_diff']:.2g}")
     return 0

@@ -8,9 +8,10 @@ Convention:
     ``hypothesis_translations`` [batch, 60, 3] (model units, input frame). Hypothesis j is the group rotation
     ``icosahedral.ANCHORS[j]`` (metadata ``anchors``). The runtime computes the neighbourhoods and the hypothesis
     scores (``equipose.core.neighbourhoods``, ``equipose.core.scores``): compiled, they take a fraction of the time of
-    onnxruntime's TopK and MatMuls. Format 3 (the default for quotient presets) goes one step further: the graph is
-    cut at each layer's kernel weights and gathered feature rows, which the runtime computes from the neighbourhoods
-    (``equipose.core.kernel_weights``, the rewrite ``graph_rewrite.kernel_weights_as_inputs``).
+    onnxruntime's TopK and MatMuls. Format 3 goes one step further: the graph is cut at each layer's kernel weights
+    and gathered feature rows, which the runtime computes from the neighbourhoods (``equipose.core.kernel_weights``,
+    the rewrite ``graph_rewrite.kernel_weights_as_inputs``); format 4 (the default for quotient presets) cuts the
+    first layer after its kernel-class sums (``graph_rewrite.class_weights_as_inputs``).
     ``format_version=1`` writes the older contract (all inside the graph, one input); ``upgrade_model_file`` turns
     such a file into a format-2 one with the same network.
     The graph uses the default ONNX domain only; the group tables are constant int64 ``Gather`` indices.
@@ -31,7 +32,7 @@ import numpy as np
 from equipose.core.errors import ConfigError, ModelFormatError
 from equipose.core.metadata import encode_metadata, flush_negligible
 from equipose.core.neighbourhoods import input_name, nearest_neighbourhoods, neighbourhood_specs
-from equipose.export.graph_rewrite import extract_graph, rewrite_model
+from equipose.export.graph_rewrite import CLASS_LAYERS, extract_graph, rewrite_model
 from equipose.models.model_io import read_model_file, write_model_file
 from equipose.runtime.session import GRAPH_OUTPUTS as OUTPUT_NAMES, INPUT_NAME, SCORES, GraphIO
 
@@ -149,10 +150,11 @@ def export_model(model, path, *, category: str, scale: float, symmetry: str = "n
             None), random_init, training, metrics: written to ``metadata_props`` via ``equipose.core.metadata.encode_metadata``.
         opset: ONNX opset of the default domain.
         verify: run the file once in onnxruntime on the export example and compare with torch (max abs ≤ 1e-4).
-        format_version: 3 (each layer's kernel weights and feature rows as inputs, no scores in the graph; quotient
+        format_version: 4 (as 3, with the first layer's kernel weights summed per kernel class; quotient presets
+            only), 3 (each layer's kernel weights and feature rows as inputs, no scores in the graph; quotient
             presets only), 2 (the neighbourhoods as inputs, no scores in the graph) or 1 (both computed in the graph,
-            for readers of the ONNX file that do not compute them); None: 3 for a quotient preset, else 2. The SDK
-            runs all three.
+            for readers of the ONNX file that do not compute them); None: 4 for a quotient preset, else 2. The SDK
+            runs all four.
     Raises:
         ConfigError / MetadataError for bad arguments; RuntimeError if the exported graph disagrees with torch.
     """
@@ -183,16 +185,16 @@ def export_model(model, path, *, category: str, scale: float, symmetry: str = "n
 
     was_training = model.training
     if format_version is None:
-        format_version = 3 if cfg.quotient else 2
-    if format_version not in (1, 2, 3):
-        raise ConfigError(f"format_version must be 1, 2 or 3, got {format_version!r}")
-    if format_version == 3 and not cfg.quotient:
-        raise ConfigError(f"format 3 (kernel weights as inputs) needs a quotient preset; {cfg.name!r} is not one: "
-                          "export it with format_version=2")
+        format_version = 4 if cfg.quotient else 2
+    if format_version not in (1, 2, 3, 4):
+        raise ConfigError(f"format_version must be 1, 2, 3 or 4, got {format_version!r}")
+    if format_version >= 3 and not cfg.quotient:
+        raise ConfigError(f"format {format_version} (kernel weights as inputs) needs a quotient preset; {cfg.name!r} "
+                          "is not one: export it with format_version=2")
     specs = neighbourhood_specs(cfg.layers) if format_version >= 2 else []
     neighbour_inputs = [input_name(sp) for sp in specs]
     names = OUTPUT_NAMES + ((SCORES,) if format_version == 1 else ())
-    meta["equipose_format"] = str(min(format_version, 2))                 # format 3: a rewrite of format 2
+    meta["equipose_format"] = str(min(format_version, 2))                 # formats 3, 4: rewrites of format 2
     wrapper = _contract_module(model, names, neighbour_inputs)            # sets eval mode on the net
     gen = torch.Generator().manual_seed(1234)
     example = torch.randn(2, cfg.num_points, 3, generator=gen) * 0.2       # [2, N, 3]; batch 2 keeps the dim symbolic
@@ -215,7 +217,8 @@ def export_model(model, path, *, category: str, scale: float, symmetry: str = "n
     del proto.metadata_props[:]
     for k, v in meta.items():
         proto.metadata_props.add(key=k, value=v)
-    rewrite_model(proto, kernel_inputs=format_version == 3)                # exact rewrites (graph_rewrite)
+    rewrite_model(proto, kernel_inputs=format_version >= 3,                # exact rewrites (graph_rewrite)
+                  class_layers=CLASS_LAYERS if format_version == 4 else ())
     flush_negligible_initializers(proto)
     onnx.checker.check_model(proto, full_check=True)
     write_model_file(proto, path)
@@ -226,7 +229,7 @@ def export_model(model, path, *, category: str, scale: float, symmetry: str = "n
 
 def _verify_parity(wrapper, path: pathlib.Path, example, specs):
     """Run the written file in onnxruntime on ``example`` [B, N, 3] as the runtime does (``GraphIO``: neighbourhoods
-    or kernel inputs and hypothesis scores computed outside a format-2 / format-3 graph) and compare all four outputs
+    or kernel inputs and hypothesis scores computed outside a format-2, -3 or -4 graph) and compare all four outputs
     with torch given the same neighbourhoods (``specs``: the model's, none for format 1)."""
     import onnxruntime as ort
     import torch

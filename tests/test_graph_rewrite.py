@@ -71,7 +71,7 @@ def test_the_file_check_refuses_a_rewrite_that_changes_outputs(tmp_path, monkeyp
     src = tmp_path / "m.onnx"
     src.write_bytes((MODELS / "cup-tabletop.onnx").read_bytes())
 
-    def drop_every_bias(proto):                             # a wrong rewrite: removes a bias that matters
+    def drop_every_bias(proto, **options):                  # a wrong rewrite: removes a bias that matters
         inits = {t.name for t in proto.graph.initializer}
         node = [n for n in proto.graph.node if n.op_type == "Add" and any(i in inits for i in n.input)][-1]  # a head's
         for user in proto.graph.node:
@@ -94,7 +94,8 @@ def test_shipped_files_are_rewritten(path):
     for f in (path, ensure_int8(path)):                                         # the fp32 file and its int8 copy
         proto = onnx.load(str(f))
         meta = {p.key: p.value for p in proto.metadata_props}
-        assert meta["equipose_format"] == "3", f.name                           # kernel weights as inputs
+        assert meta["equipose_format"] == "4", f.name                           # kernel weights as inputs
+        assert [i.name for i in proto.graph.input][1] == "class_weights_0"      # the first layer's class sums
         assert drop_normalised_biases(proto) == {}
         assert json.loads(meta["dropped_biases"])                               # the layers' weights named
 
@@ -109,18 +110,21 @@ def quotient_format2(tmp_path_factory):
     return path
 
 
-def test_kernel_weights_become_inputs(quotient_format2, tmp_path):
+@pytest.mark.parametrize("class_layers, fmt, nodes", [((), "3", 243), ((0,), "4", 240), ((0, 1, 2, 3), "4", 228)],
+                         ids=["format-3", "format-4", "format-4-every-layer"])
+def test_kernel_weights_become_inputs(quotient_format2, tmp_path, class_layers, fmt, nodes):
     from equipose.core.kernel_weights import kernel_input_names
     from equipose.core.presets import get_preset
     from equipose.runtime.estimator import PoseEstimator
-    out = tmp_path / "q3.onnx"
-    res = rewrite_model_file(quotient_format2, out)
+    out = tmp_path / "q.onnx"
+    res = rewrite_model_file(quotient_format2, out, class_layers=class_layers)
     before, after = onnx.load(str(quotient_format2)), onnx.load(str(out))
     layers = get_preset("edge-q").layers
-    assert [i.name for i in after.graph.input] == ["points"] + kernel_input_names(layers)
-    assert {p.key: p.value for p in after.metadata_props}["equipose_format"] == "3"
-    assert len(after.graph.node) <= len(before.graph.node) - 60                 # measured 318 → 243 on edge-q
+    assert [i.name for i in after.graph.input] == ["points"] + kernel_input_names(layers, class_layers)
+    assert {p.key: p.value for p in after.metadata_props}["equipose_format"] == fmt
+    assert len(before.graph.node) == 318 and len(after.graph.node) == nodes    # measured on edge-q
     assert len(res["removed"]["kernel_weights_as_inputs"]) == 2 * len(layers) - 1
+    assert sorted(res["removed"]["class_weights_as_inputs"]) == [f"class_weights_{i}" for i in class_layers]
     assert res["max_abs_diff"] <= 1e-5
     x = (np.random.default_rng(1).normal(size=(3, 256, 3)) * 0.3).astype(np.float32)
     a = PoseEstimator(quotient_format2, threads=1).run_model(x)
@@ -129,12 +133,35 @@ def test_kernel_weights_become_inputs(quotient_format2, tmp_path):
         np.testing.assert_allclose(a[k], b[k], atol=1e-5)
 
 
+def test_class_weights_of_more_layers_from_a_format4_file(tmp_path):
+    from equipose.core.kernel_weights import kernel_input_names
+    from equipose.core.presets import ModelConfig
+    from equipose.runtime.estimator import PoseEstimator
+    src = MODELS / "cup-tabletop.onnx"                                          # shipped: layer 0 as class sums
+    out = tmp_path / "cup.onnx"
+    res = rewrite_model_file(src, out, class_layers=(0, 1, 2, 3))
+    assert sorted(res["removed"]["class_weights_as_inputs"]) == ["class_weights_1", "class_weights_2",
+                                                                 "class_weights_3"]
+    after = onnx.load(str(out))
+    layers = ModelConfig.from_dict(json.loads({p.key: p.value for p in after.metadata_props}["model_config"])).layers
+    assert [i.name for i in after.graph.input] == ["points"] + kernel_input_names(layers, (0, 1, 2, 3))
+    x = (np.random.default_rng(2).normal(size=(2, 256, 3)) * 0.3).astype(np.float32)
+    a = PoseEstimator(src, threads=1).run_model(x)
+    b = PoseEstimator(out, threads=1).run_model(x)
+    for k in a:
+        np.testing.assert_allclose(a[k], b[k], atol=1e-5)
+
+
 def test_kernel_rewrite_leaves_other_graphs(quotient_format2, tmp_path):
     pytest.importorskip("torch")
-    from equipose.export.graph_rewrite import kernel_weights_as_inputs
+    from equipose.export.graph_rewrite import class_weights_as_inputs, kernel_weights_as_inputs
     from equipose.export.onnx_export import export_random_model
     tiny = export_random_model("tiny", tmp_path / "t.onnx", partial=True, category="mug", scale=0.2, verify=False)
-    for path in (tiny, MODELS / "cup-tabletop.onnx"):                            # not quotient; already format 3
+    for path in (tiny, MODELS / "cup-tabletop.onnx"):                            # not quotient; already format 4
         proto = onnx.load(str(path))
         before = proto.SerializeToString()
         assert kernel_weights_as_inputs(proto) == {} and proto.SerializeToString() == before
+        assert class_weights_as_inputs(proto, (0,)) == {} and proto.SerializeToString() == before
+    proto = onnx.load(str(quotient_format2))                                     # format 2: not cut yet
+    before = proto.SerializeToString()
+    assert class_weights_as_inputs(proto) == {} and proto.SerializeToString() == before

@@ -33,9 +33,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, default=0, help="random seed for --random-init (default: 0)")
     parser.add_argument("--opset", type=int, default=None, help="ONNX opset (default: the exporter's, 20)")
     parser.add_argument("--no-verify", action="store_true", help="skip the onnxruntime-vs-torch parity self check")
-    parser.add_argument("--format", type=int, choices=(1, 2, 3), default=None, dest="format_version",
-                        help="model file format: 3 (default for quotient presets: the runtime computes each layer's "
-                             "kernel weights and the hypothesis scores), 2 (default for the others: the runtime "
+    parser.add_argument("--format", type=int, choices=(1, 2, 3, 4), default=None, dest="format_version",
+                        help="model file format: 4 (default for quotient presets: the runtime computes each layer's "
+                             "kernel weights, the first layer's summed per kernel class, and the hypothesis "
+                             "scores), 3 (the same, no class sums), 2 (default for the others: the runtime "
                              "computes the kNN inputs and the scores) or 1 (all inside the graph, one input; "
                              "docs/architecture.md)")
 

@@ -4,11 +4,12 @@ Written by ``equipose.export`` into ``ModelProto.metadata_props``; read by the S
 ``custom_metadata_map``. Torch-free.
 
 Keys (all values are strings):
-    equipose_format         format version, currently "3" for quotient presets (the graph takes each layer's kernel
-                            weights and gathered feature rows as inputs, ``equipose.core.kernel_weights``, and
-                            outputs no hypothesis scores) and "2" for the others (the kNN neighbourhoods as inputs);
-                            the runtime computes the inputs and the scores (``equipose.runtime.session.GraphIO``);
-                            "1" files, whose graphs compute all of it, still read
+    equipose_format         format version, currently "4" for quotient presets (the graph takes each layer's kernel
+                            weights summed per kernel class and its gathered feature rows as inputs,
+                            ``equipose.core.kernel_weights``, and outputs no hypothesis scores) and "2" for the
+                            others (the kNN neighbourhoods as inputs); the runtime computes the inputs and the scores
+                            (``equipose.runtime.session.GraphIO``); "3" files (the kernel weights themselves) and "1"
+                            files, whose graphs compute all of it, still read
     equipose_version        package version that wrote the file
     category                e.g. "airplane", "mug"
     preset                  preset name (``equipose.core.presets``)
@@ -62,8 +63,8 @@ from equipose.core.errors import MetadataError, ModelVersionError
 __all__ = ["FORMAT_VERSION", "READABLE_FORMATS", "REQUIRED_KEYS", "FRAME_PRIOR_STEPS", "CONFIDENCE_FEATURES", "MAX_COPIES", "MAX_POLISH", "MAX_DENSIFY",
            "encode_metadata", "decode_metadata", "encode_turn_classifier", "flush_negligible", "float_entry"]
 
-FORMAT_VERSION = 3                                         # 2 for presets without quotient (vertex) layers
-READABLE_FORMATS = (1, 2, 3)                               # 1: kNN and hypothesis scores inside the graph
+FORMAT_VERSION = 4                                         # 2 for presets without quotient (vertex) layers
+READABLE_FORMATS = (1, 2, 3, 4)                            # 1: kNN and hypothesis scores inside the graph
 FRAME_PRIOR_STEPS = ("rest", "mirror", "footprint")       # equipose.runtime.frame_priors
 CONFIDENCE_FEATURES = ("margin", "flip_margin", "residual", "outliers", "coverage", "occlusion", "log_points",
                        "ambiguous", "up_given", "handle_seen", "handle_share", "plane_tilt",

@@ -71,7 +71,9 @@ def load_kernels() -> float:
     nearest_neighbourhoods(x[None], NeighbourhoodSpec(support=40, centres=8, k=4, ordered=True))
     layers = (LayerSpec(1, 4, 40, 8, 0.5, 0.1, 0.3, 4), LayerSpec(4, 4, 8, 8, 0.5, 0.1, 0.3, 4))
     x32 = x[None].astype(np.float32)
-    kernel_inputs(x32, layers, neighbourhoods(x32, neighbourhood_specs(layers)))
+    nbh = neighbourhoods(x32, neighbourhood_specs(layers))
+    kernel_inputs(x32, layers, nbh)                                            # format 3
+    kernel_inputs(x32, layers, nbh, classes=(0, 1))                            # format 4: both class kernels
     prepare_points(x, 16, 1.0, min_points=8)
     fit_plane_ransac(np.c_[x[:, :2], np.zeros(len(x))])                        # a plane: the refit runs too
     find_support_plane(np.ones((8, 8), np.float32), np.array([[4.0, 0, 4], [0, 4.0, 4], [0, 0, 1]]), grid=1)

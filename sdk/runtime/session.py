@@ -3,8 +3,8 @@
 Convention: an equipose model takes ``points`` [batch, N, 3] float32 (model units, FPS-ordered) and outputs
 ``GRAPH_OUTPUTS``. Format-2 graphs also take the points' neighbourhoods and leave the hypothesis scores out; format-3
 graphs take each layer's kernel weights and gathered feature rows instead of the neighbourhoods
-(``equipose.core.kernel_weights``); the runtime computes all of these (``GraphIO``), so a run always yields the four
-``OUTPUT_NAMES``. Format-1 graphs take only the points and compute the rest themselves. The equipose metadata lives
+(``equipose.core.kernel_weights``), format-4 graphs the kernel weights summed per kernel class; the runtime computes
+all of these (``GraphIO``), so a run always yields the four ``OUTPUT_NAMES``. Format-1 graphs take only the points and compute the rest themselves. The equipose metadata lives
 in the ONNX custom metadata map.
 """
 from __future__ import annotations
@@ -15,7 +15,8 @@ import pathlib
 import numpy as np
 
 from equipose.core.errors import ModelFormatError
-from equipose.core.kernel_weights import ROWS_PREFIX, WEIGHTS_PREFIX, kernel_input_names, kernel_inputs
+from equipose.core.kernel_weights import (CLASS_PREFIX, ROWS_PREFIX, WEIGHTS_PREFIX, class_name, kernel_input_names,
+                                          kernel_inputs)
 from equipose.core.model_file import read_metadata  # noqa: F401  (re-exported: reading metadata needs no session)
 from equipose.core.neighbourhoods import INPUT_PREFIX, input_name, neighbourhood_specs, neighbourhoods
 from equipose.core.presets import ModelConfig
@@ -76,9 +77,9 @@ def check_io(session, name: str, num_points: int):
     ins = session.get_inputs()
     outs = {o.name: o for o in session.get_outputs()}
     if not ins or ins[0].name != INPUT_NAME or \
-            any(not i.name.startswith((INPUT_PREFIX, WEIGHTS_PREFIX, ROWS_PREFIX)) for i in ins[1:]):
+            any(not i.name.startswith((INPUT_PREFIX, WEIGHTS_PREFIX, CLASS_PREFIX, ROWS_PREFIX)) for i in ins[1:]):
         raise ModelFormatError(f"{name}: expected the input {INPUT_NAME!r} (then only {INPUT_PREFIX}<support>, "
-                               f"{WEIGHTS_PREFIX}<layer> or {ROWS_PREFIX}<layer> inputs), got "
+                               f"{WEIGHTS_PREFIX}<layer>, {CLASS_PREFIX}<layer> or {ROWS_PREFIX}<layer> inputs), got "
                                f"{[i.name for i in ins]}; not an equipose model")
     missing = [o for o in GRAPH_OUTPUTS if o not in outs]
     if missing:
@@ -96,7 +97,8 @@ class GraphIO:
     Format 2: the graph takes the neighbourhoods ``neighbours_<support>`` [B, centres, k] int64 as inputs and outputs
     no scores; both are computed here (``equipose.core.neighbourhoods``, ``equipose.core.scores``). Format 3: the
     graph takes each layer's kernel weights and feature rows (``equipose.core.kernel_weights``, from the same
-    neighbourhoods) instead. Format 1: the graph computes all of it itself. Built from a session (or any object with
+    neighbourhoods) instead; format 4: for some layers the kernel weights summed per kernel class. Format 1: the graph
+    computes all of it itself. Built from a session (or any object with
     ``get_inputs`` / ``get_outputs``) and the model's metadata (``partial``, ``model_config``).
     """
 
@@ -106,12 +108,13 @@ class GraphIO:
         inputs = [i.name for i in session.get_inputs()][1:]
         specs = {input_name(s): s for s in neighbourhood_specs(cfg.layers)}
         self.layers = cfg.layers
-        self.kernel_inputs = any(n.startswith((WEIGHTS_PREFIX, ROWS_PREFIX)) for n in inputs)
-        if self.kernel_inputs:                                                  # format 3
-            if sorted(inputs) != sorted(kernel_input_names(cfg.layers)):
+        self.kernel_inputs = any(n.startswith((WEIGHTS_PREFIX, CLASS_PREFIX, ROWS_PREFIX)) for n in inputs)
+        self.classes = frozenset(i for i in range(len(cfg.layers)) if class_name(i) in inputs)   # format 4
+        if self.kernel_inputs:                                                  # formats 3 and 4
+            expected = kernel_input_names(cfg.layers, self.classes)
+            if sorted(inputs) != sorted(expected):
                 raise ModelFormatError(f"{name}: graph inputs {inputs} are not the kernel inputs of its "
-                                       f"{len(cfg.layers)} layers ({kernel_input_names(cfg.layers)}); re-export "
-                                       "the model")
+                                       f"{len(cfg.layers)} layers ({expected}); re-export the model")
             self.neighbourhoods = list(specs.values())
         else:
             unknown = sorted(set(inputs) - set(specs))
@@ -126,9 +129,9 @@ class GraphIO:
 
     def feeds(self, x: np.ndarray) -> dict:
         """The graph's inputs for ``x`` [B, N, 3] float32 model units: the points and their neighbourhoods
-        (format 2), or the kernel weights and feature rows computed from them (format 3)."""
+        (format 2), or the kernel inputs computed from them (formats 3 and 4)."""
         nbh = neighbourhoods(x, self.neighbourhoods)
-        return {INPUT_NAME: x, **(kernel_inputs(x, self.layers, nbh) if self.kernel_inputs else nbh)}
+        return {INPUT_NAME: x, **(kernel_inputs(x, self.layers, nbh, self.classes) if self.kernel_inputs else nbh)}
 
     def complete(self, outputs: dict, x: np.ndarray) -> dict:
         """The graph's ``outputs`` on ``x`` with ``hypothesis_scores`` [B, 60] added when the graph does not compute

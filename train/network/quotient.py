@@ -22,6 +22,7 @@ import torch
 from torch import nn
 
 from equipose.core import icosahedral
+from equipose.core.kernel_weights import CLASS_MATRIX
 from equipose.core.presets import LayerSpec
 
 from equipose.train.network.layers import SeparableSO3Block, hat_weights, kernel_aug
@@ -32,17 +33,6 @@ __all__ = ["QuotientInterConv", "QuotientIntraConv", "QuotientBlock", "lift_pair
 V = 12
 KERNEL_CLASSES = 5          # centre, same vertex, near ring, far ring, antipode
 VERTEX_CLASSES = 4          # same, near ring, far ring, antipode
-
-
-def _kernel_class_matrix() -> np.ndarray:
-    """[V·KERNEL_CLASSES, 13] 0/1: row (v, class) sums the hat weights of the kernel points of that class seen from
-    v."""
-    m = np.zeros((V, KERNEL_CLASSES, 13), np.float32)
-    m[:, 0, 0] = 1.0                                                                   # the centre
-    for v in range(V):
-        for u in range(V):
-            m[v, 1 + int(icosahedral.VERTEX_CLASS[v, u]), u + 1] = 1.0
-    return m.reshape(V * KERNEL_CLASSES, 13)
 
 
 def _vertex_class_matrix() -> np.ndarray:
@@ -66,7 +56,7 @@ class QuotientInterConv(nn.Module):
         self.spec = spec
         kern = icosahedral.kernel_points(13, spec.kernel_radius)                       # [13, 3]
         self.register_buffer("kernel_aug", kernel_aug(kern, spec.sigma), persistent=False)  # [13, 5]
-        self.register_buffer("class_sum", torch.tensor(_kernel_class_matrix()), persistent=False)   # [V·5, 13]
+        self.register_buffer("class_sum", torch.tensor(CLASS_MATRIX), persistent=False)   # [V·5, 13]
         self.weight = nn.Parameter(torch.empty(KERNEL_CLASSES * spec.c_in, spec.c_out))  # [5·Cin, Cout], class-major
         self.bias = nn.Parameter(torch.full((spec.c_out,), 1e-3))
         nn.init.xavier_normal_(self.weight.view(KERNEL_CLASSES, spec.c_in, spec.c_out).permute(2, 1, 0),
