@@ -4,8 +4,8 @@ Convention: an equipose model takes ``points`` [batch, N, 3] float32 (model unit
 ``GRAPH_OUTPUTS``. Format-2 graphs also take the points' neighbourhoods and leave the hypothesis scores out; format-3
 graphs take each layer's kernel weights and gathered feature rows instead of the neighbourhoods
 (``equipose.core.kernel_weights``), format-4 graphs the kernel weights summed per kernel class; the runtime computes
-all of these (``GraphIO``), so a run always yields the four ``OUTPUT_NAMES``. Format-1 graphs take only the points and compute the rest themselves. The equipose metadata lives
-in the ONNX custom metadata map.
+all of these (``GraphIO``), so a run always yields the four ``OUTPUT_NAMES``. Format-1 graphs take only the points
+and compute the rest themselves. The equipose metadata lives in the ONNX custom metadata map.
 """
 from __future__ import annotations
 
@@ -98,8 +98,8 @@ class GraphIO:
     no scores; both are computed here (``equipose.core.neighbourhoods``, ``equipose.core.scores``). Format 3: the
     graph takes each layer's kernel weights and feature rows (``equipose.core.kernel_weights``, from the same
     neighbourhoods) instead; format 4: for some layers the kernel weights summed per kernel class. Format 1: the graph
-    computes all of it itself. Built from a session (or any object with
-    ``get_inputs`` / ``get_outputs``) and the model's metadata (``partial``, ``model_config``).
+    computes all of it itself. Built from a session (or any object with ``get_inputs`` / ``get_outputs``) and the
+    model's metadata (``partial``, ``model_config``).
     """
 
     def __init__(self, session, metadata: dict, name: str = "model"):
