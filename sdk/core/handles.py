@@ -21,7 +21,7 @@ import numpy as np
 from numba import njit
 
 from equipose.core.errors import InvalidPointsError
-from equipose.core.order_statistics import sorted_percentile, sorted_quantile
+from equipose.core.order_statistics import median, sorted_percentile, sorted_quantile
 
 __all__ = ["HandleFit", "fit_handle", "align_handle", "turn_about_z", "handle_zone_count", "handle_zone_mask", "HANDLE_MIN_POINTS",
            "HANDLE_MIN_FRACTION", "HANDLE_MIN_SHARE", "HANDLE_MIN_MASS", "HANDLE_MAX_RATIO",
@@ -69,7 +69,7 @@ def fit_handle(points: np.ndarray, *, bands: int = 6, bins: int = 36, min_share:
     p = np.ascontiguousarray(points, np.float64)
     if p.ndim != 2 or p.shape[1] != 3 or len(p) < 50:
         raise InvalidPointsError(f"fit_handle needs an [N ≥ 50, 3] cloud, got shape {p.shape}")
-    c = np.median(p[:, :2], axis=0) if centre is None else np.asarray(centre, np.float64).reshape(2)
+    c = (median(p[:, 0]), median(p[:, 1])) if centre is None else np.asarray(centre, np.float64).reshape(2)
     edges = _height_bands(p[:, 2], bands)                                          # [bands + 1]
     cap = np.inf if max_ratio is None else float(max_ratio)
     azimuth, share, mass, cx, cy = _fit_handle(p, edges, int(bins), float(c[0]), float(c[1]), cap)

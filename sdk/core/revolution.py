@@ -15,6 +15,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 
 __all__ = ["AxisLine", "axis_line", "SIDE_BAND", "MIN_SIDE_POINTS", "MIN_SPREAD"]
 
@@ -42,40 +43,92 @@ def axis_line(points, normals, axis, start, iters: int = 6, band: float = SIDE_B
     """The axis line of direction ``axis`` that the side normals of ``points`` meet, as the point of it nearest to
     ``start`` [3] (along the axis ``start`` is kept), or None when fewer than ``MIN_SIDE_POINTS`` side normals are
     seen or they barely turn (``MIN_SPREAD``). ``iters`` rounds of Cauchy-reweighted least squares from ``start``."""
-    p = np.asarray(points, np.float64)                                          # [N, 3]
-    n = np.asarray(normals, np.float64)                                         # [N, 3]
+    p = np.ascontiguousarray(points, np.float64)                                # [N, 3]
+    n = np.ascontiguousarray(normals, np.float64)                               # [N, 3]
     if p.ndim != 2 or p.shape[1] != 3 or n.shape != p.shape:
         raise ValueError(f"axis_line: points and normals must both be [N, 3], got {p.shape} and {n.shape}")
     a = np.asarray(axis, np.float64).reshape(3)
     a = a / np.linalg.norm(a)
     c0 = np.asarray(start, np.float64).reshape(3)
-    u = np.cross(a, n)                                                          # [N, 3] ⟂ axis and normal
-    s = np.linalg.norm(u, axis=1)                                               # [N] sin of the normal's angle to a
-    side = s > np.sqrt(1.0 - band * band)
-    if int(side.sum()) < MIN_SIDE_POINTS:
+    E = _plane_basis(a)                                                         # [3, 2] basis of the plane ⟂ a
+    out = np.empty(5)                                                           # x (2), spread, sides, residual
+    _fit(p, n, a, c0, E, int(iters), float(np.sqrt(1.0 - band * band)), out)
+    sides, spread = int(out[3]), float(out[2])
+    if sides < MIN_SIDE_POINTS or spread < MIN_SPREAD:
         return None
-    u, p = u[side] / s[side, None], p[side]                                     # [S, 3] unit, [S, 3]
-    e1 = np.cross(a, [1.0, 0.0, 0.0] if abs(a[0]) < 0.9 else [0.0, 1.0, 0.0])
+    x = out[:2]
+    return AxisLine(point=c0 + E @ x, shift=float(np.hypot(x[0], x[1])), spread=spread, sides=sides,
+                    residual=float(out[4]))
+
+
+@njit(cache=True)
+def _plane_basis(a):
+    """[3, 2] an orthonormal basis (e1, a × e1) of the plane perpendicular to the unit ``a`` [3]."""
+    h = np.array([1.0, 0.0, 0.0]) if abs(a[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    e1 = np.cross(a, h)
     e1 /= np.linalg.norm(e1)
-    e2 = np.cross(a, e1)
-    E = np.stack([e1, e2], 1)                                                   # [3, 2] basis of the plane ⟂ a
-    U = u @ E                                                                   # [S, 2]
-    b = np.einsum("ij,ij->i", u, p - c0)                                        # [S] u · (p − c0)
-    floor = SCALE_FLOOR * float(np.sqrt(np.mean(np.sum((p - c0) ** 2, axis=1))))
-    x = np.zeros(2)                                                             # the axis point's offset in the plane
-    w = np.ones(len(b))
-    A = U.T @ U                                                                 # [2, 2] the weighted normal matrix
+    E = np.empty((3, 2))
+    E[:, 0], E[:, 1] = e1, np.cross(a, e1)
+    return E
+
+
+@njit(cache=True, nogil=True)
+def _fit(p, n, a, c0, E, iters, min_sin, out) -> None:
+    """``out`` ← (x [2], spread, sides, residual) of ``axis_line``: the side points of ``p`` [N, 3] (normals ``n``
+    whose sine to the unit axis ``a`` exceeds ``min_sin``) as rows U = (a × n̂)ᵀE [S, 2], b = (a × n̂)·(p − c0) [S],
+    then ``iters`` rounds of Cauchy-reweighted least squares for the axis point's in-plane offset x (spread and
+    residual from the last round's weights: all 1 when ``iters`` is 0). sides < ``MIN_SIDE_POINTS`` leaves the rest
+    unset."""
+    N = p.shape[0]
+    U, b, d2 = np.empty((N, 2)), np.empty(N), 0.0
+    S = 0
+    for i in range(N):
+        ux = a[1] * n[i, 2] - a[2] * n[i, 1]                                    # a × n
+        uy = a[2] * n[i, 0] - a[0] * n[i, 2]
+        uz = a[0] * n[i, 1] - a[1] * n[i, 0]
+        s = np.sqrt(ux * ux + uy * uy + uz * uz)                                # sin of the normal's angle to a
+        if s <= min_sin:
+            continue
+        ux, uy, uz = ux / s, uy / s, uz / s
+        qx, qy, qz = p[i, 0] - c0[0], p[i, 1] - c0[1], p[i, 2] - c0[2]
+        U[S, 0] = ux * E[0, 0] + uy * E[1, 0] + uz * E[2, 0]
+        U[S, 1] = ux * E[0, 1] + uy * E[1, 1] + uz * E[2, 1]
+        b[S] = ux * qx + uy * qy + uz * qz
+        d2 += qx * qx + qy * qy + qz * qz
+        S += 1
+    out[3] = S
+    if S < MIN_SIDE_POINTS:
+        return
+    floor = SCALE_FLOOR * np.sqrt(d2 / S)
+    x0, x1 = 0.0, 0.0
+    r, w = np.empty(S), np.ones(S)
+    a00, a01, a11 = 0.0, 0.0, 0.0
+    for i in range(S):                                                          # the unweighted normal matrix
+        a00 += U[i, 0] * U[i, 0]
+        a01 += U[i, 0] * U[i, 1]
+        a11 += U[i, 1] * U[i, 1]
     for _ in range(iters):
-        r = U @ x - b                                                           # [S] each normal line's distance
-        sigma = max(1.4826 * float(np.median(np.abs(r))), floor)
-        w = 1.0 / (1.0 + (r / sigma) ** 2)                                      # [S] Cauchy
-        Uw = U * w[:, None]                                                     # [S, 2]
-        A = Uw.T @ U
-        x = np.linalg.solve(A + 1e-12 * np.eye(2), Uw.T @ b)
-    lo, hi = np.linalg.eigvalsh(A)
-    spread = float(lo / hi) if hi > 0 else 0.0
-    if spread < MIN_SPREAD:
-        return None
-    r = U @ x - b
-    return AxisLine(point=c0 + E @ x, shift=float(np.linalg.norm(x)), spread=spread, sides=len(b),
-                    residual=float(np.sqrt(np.sum(w * r * r) / np.sum(w))))
+        for i in range(S):
+            r[i] = U[i, 0] * x0 + U[i, 1] * x1 - b[i]                           # each normal line's distance
+        sigma = max(1.4826 * np.median(np.abs(r)), floor)
+        a00, a01, a11, g0, g1 = 0.0, 0.0, 0.0, 0.0, 0.0
+        for i in range(S):
+            w[i] = 1.0 / (1.0 + (r[i] / sigma) ** 2)                            # Cauchy
+            a00 += w[i] * U[i, 0] * U[i, 0]
+            a01 += w[i] * U[i, 0] * U[i, 1]
+            a11 += w[i] * U[i, 1] * U[i, 1]
+            g0 += w[i] * U[i, 0] * b[i]
+            g1 += w[i] * U[i, 1] * b[i]
+        d00, d11 = a00 + 1e-12, a11 + 1e-12
+        det = d00 * d11 - a01 * a01
+        x0, x1 = (d11 * g0 - a01 * g1) / det, (d00 * g1 - a01 * g0) / det
+    half, diff = 0.5 * (a00 + a11), np.sqrt(0.25 * (a00 - a11) ** 2 + a01 * a01)
+    lo, hi = half - diff, half + diff                                           # eigenvalues of the last matrix
+    out[0], out[1] = x0, x1
+    out[2] = lo / hi if hi > 0.0 else 0.0
+    rw, sw = 0.0, 0.0
+    for i in range(S):
+        ri = U[i, 0] * x0 + U[i, 1] * x1 - b[i]
+        rw += w[i] * ri * ri
+        sw += w[i]
+    out[4] = np.sqrt(rw / sw)

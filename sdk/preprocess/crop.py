@@ -207,7 +207,7 @@ def auto_plane_height(heights) -> float:
     h = np.asarray(heights, np.float64)
     if len(h) < 50:
         return PLANE_HEIGHT_RANGE[1]
-    sigma = 1.4826 * float(np.median(np.abs(h - np.median(h))))
+    sigma = 1.4826 * median(np.abs(h - median(h)))
     return float(np.clip(PLANE_NOISE_SIGMAS * sigma, *PLANE_HEIGHT_RANGE))
 
 

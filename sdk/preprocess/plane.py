@@ -13,6 +13,7 @@ from numba import njit
 
 from equipose.core.errors import TooFewPointsError
 from equipose.core.eigen import top_eigenvector
+from equipose.core.order_statistics import median
 
 __all__ = ["fit_plane_ransac", "find_support_plane", "plane_height_terms", "densest_level", "local_support_plane",
            "LOCAL_LIFT_M", "LOCAL_BAND_M"]
@@ -181,7 +182,7 @@ def densest_level(heights: np.ndarray, start: float, stop: float, width: float) 
         return None, 0
     counts = np.histogram(heights, edges)[0]
     k = int(np.argmax(counts))
-    return float(np.median(heights[(heights >= edges[k]) & (heights <= edges[k + 1])])), int(counts[k])
+    return median(heights[(heights >= edges[k]) & (heights <= edges[k + 1])]), int(counts[k])
 
 
 def local_support_plane(depth_m: np.ndarray, K: np.ndarray, plane, bounds, *, margin: float = 0.25,
@@ -213,7 +214,7 @@ def local_support_plane(depth_m: np.ndarray, K: np.ndarray, plane, bounds, *, ma
     n, off = np.asarray(plane[0], np.float64), float(plane[1])
     ry, cx, _ = plane_height_terms((n, off), np.asarray(K, np.float64), x0, y0, x1, y1)  # [h], [w] full window
     h = win[rows, cols] * (ry[::step][rows] + cx[::step][cols]) + off           # [P] m above the plane
-    low = h[h <= np.median(h)]                                                  # [P'] the lower half
+    low = h[h <= median(h)]                                                     # [P'] the lower half
     level, _ = densest_level(low, low.min(), low.max(), band)                   # the most populated level
     return plane if level is None or level <= lift else (n, off - level)
 

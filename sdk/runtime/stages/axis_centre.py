@@ -29,6 +29,7 @@ import numpy as np
 
 from equipose.core.errors import ConfigError, MetadataError
 from equipose.core.normals import point_normals
+from equipose.core.order_statistics import median
 from equipose.core.revolution import axis_line
 from equipose.runtime.stage import (NORMAL_NEIGHBOURS, ObjectState, Stage, cloud_points_option, enabled_option,
                                     entry_options, register_stage)
@@ -78,7 +79,7 @@ class AxisCentreStage(Stage):
         if line is None:
             return
         shape = state.canonical_category                                        # [M, 3] category frame
-        radius = float(np.median(np.hypot(shape[:, 0], shape[:, 1])))
+        radius = median(np.hypot(shape[:, 0], shape[:, 1]))
         if line.shift > self.max_shift * radius:
             return
         state.set_pose(state.rotation, line.point)
