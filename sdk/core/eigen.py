@@ -9,15 +9,27 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-__all__ = ["top_eigenvector"]
+__all__ = ["top_eigenvector", "top_eigenvector_into"]
 
 
 @njit(cache=True)
 def top_eigenvector(A):
     """Unit eigenvector [n] of the largest eigenvalue of the symmetric ``A`` [n, n]."""
     n = A.shape[0]
-    A = A.copy()
-    V = np.eye(n)
+    W, V = A.copy(), np.empty((n, n))
+    return V[:, top_eigenvector_into(W, V)].copy()
+
+
+@njit(cache=True)
+def top_eigenvector_into(W, V) -> int:
+    """The index b of the largest eigenvalue of the symmetric ``W`` [n, n], with ``V`` [n, n] (any values on entry)
+    set to its eigenvectors: the unit vector is ``V[:, b]``. ``W`` is overwritten (diagonalised). No allocation:
+    for kernels that solve many small matrices in a loop."""
+    n = W.shape[0]
+    A = W
+    for p in range(n):
+        for q in range(n):
+            V[p, q] = 1.0 if p == q else 0.0
     for _ in range(30):
         off, diag = 0.0, 0.0
         for p in range(n):
@@ -47,4 +59,4 @@ def top_eigenvector(A):
     for i in range(1, n):
         if A[i, i] > A[best, best]:
             best = i
-    return V[:, best].copy()
+    return best
