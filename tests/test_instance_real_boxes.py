@@ -1,0 +1,52 @@
+"""``tools/bench/instance_real.py``: its hand-drawn boxes (``tools/bench/data/ycb_demo_boxes.toml``) name YCB-Video
+models and frames of ``ycb_posecnn`` and lie inside the 640 × 480 image; its fit measure."""
+import importlib.util
+import pathlib
+import tomllib
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+DATA = ROOT.parent / "shared" / "data" / "ycb_posecnn"
+
+
+def _tool():
+    spec = importlib.util.spec_from_file_location("instance_real", ROOT / "tools" / "bench" / "instance_real.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def _objects():
+    return tomllib.loads((ROOT / "tools" / "bench" / "data" / "ycb_demo_boxes.toml").read_text())["object"]
+
+
+def test_boxes_lie_inside_the_frame():
+    objects = _objects()
+    assert len(objects) == 5 and len({o["model"] for o in objects}) == 5
+    for o in objects:
+        x0, y0, x1, y1 = o["box"]
+        assert 0 <= x0 < x1 <= 640 and 0 <= y0 < y1 <= 480, o
+
+
+@pytest.mark.skipif(not DATA.is_dir(), reason="../shared/data/ycb_posecnn not present")
+def test_every_box_has_its_frame_and_model_points():
+    for o in _objects():
+        assert (DATA / "demo_images" / f"{o['frame']}-depth.png").is_file()
+        assert (DATA / "models" / o["model"] / "points.xyz").is_file()
+
+
+def test_crop_fit_counts_the_points_near_the_posed_model():
+    from scipy.spatial.transform import Rotation
+    fit = _tool().crop_fit
+    rng = np.random.default_rng(0)
+    model = rng.uniform(-0.05, 0.05, (2000, 3))                                 # m, object frame
+    R, t = Rotation.from_euler("xyz", [20, -40, 75], degrees=True).as_matrix(), np.array([0.1, -0.05, 0.8])
+    result = SimpleNamespace(rotation=R, translation=t)
+    seen = model[:500] @ R.T + t                                                # points of the posed model
+    share, rms = fit(result, seen, model)
+    assert share == 1.0 and rms < 1e-9
+    share, rms = fit(result, np.vstack([seen, seen[:500] + [0.0, 0.0, 0.2]]), model)   # as many 20 cm away
+    assert share == pytest.approx(0.5) and rms < 1e-9
