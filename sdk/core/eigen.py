@@ -21,12 +21,11 @@ def top_eigenvector(A):
 
 
 @njit(cache=True)
-def top_eigenvector_into(W, V) -> int:
-    """The index b of the largest eigenvalue of the symmetric ``W`` [n, n], with ``V`` [n, n] (any values on entry)
-    set to its eigenvectors: the unit vector is ``V[:, b]``. ``W`` is overwritten (diagonalised). No allocation:
+def top_eigenvector_into(A, V) -> int:
+    """The index b of the largest eigenvalue of the symmetric ``A`` [n, n], with ``V`` [n, n] (any values on entry)
+    set to its eigenvectors: the unit vector is ``V[:, b]``. ``A`` is overwritten (diagonalised). No allocation:
     for kernels that solve many small matrices in a loop."""
-    n = W.shape[0]
-    A = W
+    n = A.shape[0]
     for p in range(n):
         for q in range(n):
             V[p, q] = 1.0 if p == q else 0.0

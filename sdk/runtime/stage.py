@@ -27,7 +27,7 @@ from equipose.core.errors import ConfigError, MetadataError
 from equipose.core.metadata import float_entry
 from equipose.core.normals import point_normals
 from equipose.core.opening import top_closure
-from equipose.core.order_statistics import sorted_percentile
+from equipose.core.order_statistics import selected_percentile
 
 __all__ = ["Stage", "ObjectState", "register_stage", "unregister_stage", "registered_stages", "stage_metadata_keys",
            "STAGE_ORDER", "TOP_PERCENTILE", "NORMAL_NEIGHBOURS", "cloud_points_option", "enabled_option", "entry_options",
@@ -293,7 +293,7 @@ class ObjectState:
         """Height (m) of the object's top above its support plane: ``TOP_PERCENTILE`` of its crop points' heights.
         Needs ``support_up``."""
         heights = self.prep.to_metres(self.every_point) @ self.support_up + self.support_offset    # [P] m
-        return float(sorted_percentile(np.sort(np.asarray(heights, np.float64)), TOP_PERCENTILE))
+        return float(selected_percentile(np.ascontiguousarray(heights, np.float64), TOP_PERCENTILE))
 
     def at_height(self, translation, height_m: float) -> np.ndarray:
         """``translation`` [3] (model units) moved along the support plane's normal so that the centre lies

@@ -23,6 +23,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from equipose import PoseEstimator
+from equipose.runtime.overlay import project
 
 HERE = pathlib.Path(__file__).resolve().parent
 DATA = HERE.parents[2] / "shared" / "data" / "ycb_posecnn"
@@ -79,11 +80,10 @@ def main(argv=None) -> int:
         rows.append(row)
         print(f"{obj['model']:22s} {row['ms']:6.1f} {row['crop_ms']:5.1f} {row['inference_ms']:5.1f} "
               f"{row['selection_ms']:6.1f} {row['confidence']:5.2f} {str(row['ambiguous']):5s} "
-              f"{share if share is None else round(share, 2)!s:>7s}  {rms if rms is None else round(rms, 2)!s:>6s}")
+              f"{share:7.2f}  {rms if rms is None else round(rms, 2)!s:>6s}")
         img = canvas[f]
-        uv = (P @ r.rotation.T + r.translation) @ K_COLOUR.T                    # [M, 3] homogeneous pixels
-        uv = uv[:, :2] / uv[:, 2:]
-        for u, v in uv.astype(int):
+        uv, front = project(P @ r.rotation.T + r.translation, K_COLOUR)         # [M, 2] pixels, [M] bool
+        for u, v in uv[front].astype(int):
             if 0 <= u < img.shape[1] and 0 <= v < img.shape[0]:
                 cv2.circle(img, (int(u), int(v)), 1, COLOURS[k % len(COLOURS)], -1)
         cv2.rectangle(img, box[:2], (box[2] - 1, box[3] - 1), COLOURS[k % len(COLOURS)], 1)
