@@ -20,6 +20,8 @@ from equipose.core.metadata import decode_metadata
 from equipose.core.parallel import MAX_WORKERS, kernel_workers, run_parts, single_thread_blas, split_ranges
 from equipose.core.presets import ModelConfig, total_macs
 from equipose.runtime.instance import INSTANCE_ITERS, build_instance_model
+from equipose.runtime.instance_clusters import (SEE_THROUGH_MAX, choose_cluster, fit_shares, other_cluster_gates,
+                                                see_through_share)
 from equipose.runtime.kernels import load_kernels
 from equipose.runtime.pipeline import Pipeline
 from equipose.runtime.profiles import merge_stage_options, profile_options
@@ -363,7 +365,47 @@ class PoseEstimator:
                                   support_planes=supports)
             for i, r in zip(slots, results):
                 out[i] = r
+            if self.instance is not None:                                       # the box's other clusters, posed
+                for j, i in enumerate(slots):
+                    if regions[i].get("mask") is None and crops[j].diagnostics.get("clusters", 0) >= 2:
+                        out[i] = self._other_clusters(depth_m, Kf, regions[i]["box"], out[i], crops[j], crop_options)
         return out
+
+    def _other_clusters(self, depth_m, K, box, result: PoseResult, crop, crop_options: dict) -> PoseResult:
+        """Instance mode, a box crop that found several depth clusters: where the pose is seen through
+        (``equipose.runtime.instance_clusters``), the box cropped again beyond and before the chosen cluster, each
+        crop posed, and the pose seen through least kept. Result extras ``clusters_tried``: [{"depth_m", "points",
+        "fit", "see_through"} (+ the re-crop's "min_depth", "max_depth" crop options)] per candidate, the
+        box-evidence crop first; ``cluster_choice``: "box" or "fit"."""
+        t0 = time.perf_counter()
+        model = self.instance.verify_m
+        cands, crops, gates = [result], [crop], [{}]
+        seen = [see_through_share(result.rotation, result.translation, model, depth_m, K)]
+        if seen[0] > SEE_THROUGH_MAX:
+            opts = _crop.check_crop_options({**self.crop_options, **crop_options})
+            for gate in other_cluster_gates(crop.points, opts.get("min_depth", 0.1), opts.get("max_depth", 10.0)):
+                try:
+                    c = self.crop(depth_m, K, box=box, depth_unit="m", prevalidated=True, **{**crop_options, **gate})
+                    prep = _crop.prepare_points(c.points, self.num_points, self.scale)
+                    r = self._infer([prep], [c], [0.0], [0.0], [len(c.points)])[0]
+                except EquiposeError:                                           # nothing left there: no candidate
+                    continue
+                cands.append(r)
+                crops.append(c)
+                gates.append({k: round(v, 4) for k, v in gate.items()})
+                seen.append(see_through_share(r.rotation, r.translation, model, depth_m, K))
+        shares = fit_shares(np.stack([r.rotation for r in cands]), np.stack([r.translation for r in cands]), model,
+                            [c.points for c in crops])                          # [C]
+        best = choose_cluster(seen)
+        chosen = cands[best]
+        chosen.extras["clusters_tried"] = [{"depth_m": round(float(np.median(c.points[:, 2])), 4),
+                                            "points": int(len(c.points)), "fit": round(float(f), 4),
+                                            "see_through": round(float(v), 4), **g}
+                                           for c, f, v, g in zip(crops, shares, seen, gates)]
+        chosen.extras["cluster_choice"] = "box" if best == 0 else "fit"
+        extra = _ms(t0)
+        chosen.timings = {**result.timings, "other_clusters": extra, "total": result.timings["total"] + extra}
+        return chosen
 
     def predict_auto(self, depth, K, depth_unit="mm", *, image_size=None, return_errors: bool = False,
                      auto_options: dict | None = None, up=None, **crop_options) -> list:

@@ -33,6 +33,7 @@ __all__ = ["InstanceModel", "build_instance_model", "INSTANCE_ITERS", "COARSE_IT
            "undecided_turn", "better_turn"]
 
 TEMPLATE_POINTS = 1024          # model points kept (FPS) for ICP
+VERIFY_POINTS = 8192            # model points kept (FPS) to check a pose against a crop (instance_clusters)
 COARSE_ITERS = 3                # ICP steps for every hypothesis before the k best are refined ...
 COARSE_POINTS = 64              # ... on this many observed points (FPS prefix of the model input)
 SUB_TEMPLATE_POINTS = 256       # model points (FPS prefix) of the coarse steps and of the k best's convergence
@@ -54,7 +55,8 @@ class InstanceModel:
     Attributes: ``points_m`` [M', 3] metres, CAD frame (an FPS subset of the model points, FPS-ordered); ``template``
     [M', 3] the same points in model units, learned frame; ``normals`` [M', 3] the template's unit normals;
     ``A`` [3, 3], ``b`` [3]: CAD (metres / scale) → learned frame; ``k`` hypotheses refined per observation;
-    ``iters`` point-to-plane iterations to convergence.
+    ``iters`` point-to-plane iterations to convergence; ``verify_m`` [M'', 3] metres, CAD frame: the model points a
+    pose is checked against (all of them, or ``VERIFY_POINTS`` by FPS; ``equipose.runtime.instance_clusters``).
     """
     points_m: np.ndarray
     template: np.ndarray
@@ -63,6 +65,7 @@ class InstanceModel:
     b: np.ndarray
     k: int
     iters: int
+    verify_m: np.ndarray | None = None
 
 
 def build_instance_model(est, model_points, *, k: int = 10, iters: int = INSTANCE_ITERS) -> InstanceModel:
@@ -81,7 +84,9 @@ def build_instance_model(est, model_points, *, k: int = 10, iters: int = INSTANC
     A, b = R_c.T, -R_c.T @ (prep.centre_m / est.scale + t_c)
     sub = q[farthest_point_order(q.astype(np.float32), min(TEMPLATE_POINTS, len(q)))]  # [M', 3] m
     template = sub / est.scale @ A.T + b                                        # [M', 3] model units, learned frame
-    return InstanceModel(points_m=sub, template=template, normals=point_normals(template), A=A, b=b, k=k, iters=iters)
+    dense = q if len(q) <= VERIFY_POINTS else q[farthest_point_order(q.astype(np.float32), VERIFY_POINTS)]
+    return InstanceModel(points_m=sub, template=template, normals=point_normals(template), A=A, b=b, k=k, iters=iters,
+                         verify_m=np.asarray(dense, np.float64))
 
 
 def turned_fits(points: np.ndarray, template: np.ndarray, R: np.ndarray, t: np.ndarray, normals=None) -> tuple:

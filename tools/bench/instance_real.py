@@ -62,20 +62,27 @@ def main(argv=None) -> int:
             canvas[f] = cv2.imread(str(data / "demo_images" / f"{f}-color.png"))
         P = np.loadtxt(data / "models" / obj["model"] / "points.xyz")[:, :3]   # [M, 3] metres, object frame
         est = PoseEstimator(a.seed_model, model_points=P, threads=a.threads)
-        box = tuple(obj["box"])
+        x0, y0, x1, y1 = obj["box"]
+        box = (x0, y0, x1 - x0, y1 - y0)                                        # (x, y, w, h), as predict takes it
         est.predict(frames[f], K_COLOUR, box=box, depth_unit=DEPTH_UNIT)               # warm-up
         ms = []
         for _ in range(a.runs):
             t0 = time.perf_counter()
             r = est.predict(frames[f], K_COLOUR, box=box, depth_unit=DEPTH_UNIT)
             ms.append((time.perf_counter() - t0) * 1e3)
-        crop = est.crop(frames[f], K_COLOUR, box=box, depth_unit=DEPTH_UNIT).points      # [P, 3] m
+        tried = r.extras.get("clusters_tried") or [{}]
+        kept = 0 if r.extras.get("cluster_choice") != "fit" else \
+            min(range(len(tried)), key=lambda i: tried[i]["see_through"])       # the crop the pose was found on
+        gate = {k: v for k, v in tried[kept].items() if k in ("min_depth", "max_depth")}
+        crop = est.crop(frames[f], K_COLOUR, box=box, depth_unit=DEPTH_UNIT, **gate).points   # [P, 3] m
         share, rms = crop_fit(r, np.asarray(crop, np.float64), P)
         tm = r.timings
         row = {"frame": f, "model": obj["model"], "front": obj.get("front", ""), "ms": round(float(np.median(ms)), 2),
                "crop_ms": round(tm["crop"], 2), "inference_ms": round(tm["inference"], 2),
                "selection_ms": round(tm["selection"], 2), "confidence": round(float(r.confidence), 3),
                "ambiguous": bool(r.ambiguous), "fit_share": share, "fit_rms_mm": rms,
+               "clusters": r.crop.get("clusters"), "cluster_choice": r.extras.get("cluster_choice"),
+               "clusters_tried": r.extras.get("clusters_tried"),
                "rotation": r.rotation.tolist(), "translation_m": r.translation.tolist()}
         rows.append(row)
         print(f"{obj['model']:22s} {row['ms']:6.1f} {row['crop_ms']:5.1f} {row['inference_ms']:5.1f} "
@@ -86,7 +93,7 @@ def main(argv=None) -> int:
         for u, v in uv[front].astype(int):
             if 0 <= u < img.shape[1] and 0 <= v < img.shape[0]:
                 cv2.circle(img, (int(u), int(v)), 1, COLOURS[k % len(COLOURS)], -1)
-        cv2.rectangle(img, box[:2], (box[2] - 1, box[3] - 1), COLOURS[k % len(COLOURS)], 1)
+        cv2.rectangle(img, (x0, y0), (x1 - 1, y1 - 1), COLOURS[k % len(COLOURS)], 1)
     if a.json:
         pathlib.Path(a.json).write_text(json.dumps(rows, indent=1))
     if a.overlay:
