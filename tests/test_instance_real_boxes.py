@@ -25,7 +25,7 @@ def _objects():
 
 def test_boxes_lie_inside_the_frame():
     objects = _objects()
-    assert len(objects) == 5 and len({o["model"] for o in objects}) == 5
+    assert len(objects) == 12 and len({(o["frame"], o["model"]) for o in objects}) == 12   # one box per object
     for o in objects:
         x0, y0, x1, y1 = o["box"]
         assert 0 <= x0 < x1 <= 640 and 0 <= y0 < y1 <= 480, o
