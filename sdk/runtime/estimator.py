@@ -395,7 +395,7 @@ class PoseEstimator:
                 gates.append({k: round(v, 4) for k, v in gate.items()})
                 seen.append(see_through_share(r.rotation, r.translation, model, depth_m, K))
         shares = fit_shares(np.stack([r.rotation for r in cands]), np.stack([r.translation for r in cands]), model,
-                            [c.points for c in crops])                          # [C]
+                            [c.points for c in crops], tree=self.instance.verify_tree)   # [C]
         best = choose_cluster(seen)
         chosen = cands[best]
         chosen.extras["clusters_tried"] = [{"depth_m": round(float(np.median(c.points[:, 2])), 4),

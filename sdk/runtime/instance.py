@@ -56,7 +56,8 @@ class InstanceModel:
     [M', 3] the same points in model units, learned frame; ``normals`` [M', 3] the template's unit normals;
     ``A`` [3, 3], ``b`` [3]: CAD (metres / scale) → learned frame; ``k`` hypotheses refined per observation;
     ``iters`` point-to-plane iterations to convergence; ``verify_m`` [M'', 3] metres, CAD frame: the model points a
-    pose is checked against (all of them, or ``VERIFY_POINTS`` by FPS; ``equipose.runtime.instance_clusters``).
+    pose is checked against (all of them, or ``VERIFY_POINTS`` by FPS; ``equipose.runtime.instance_clusters``) and
+    ``verify_tree`` their ``scipy.spatial.cKDTree``.
     """
     points_m: np.ndarray
     template: np.ndarray
@@ -66,6 +67,7 @@ class InstanceModel:
     k: int
     iters: int
     verify_m: np.ndarray | None = None
+    verify_tree: object = None
 
 
 def build_instance_model(est, model_points, *, k: int = 10, iters: int = INSTANCE_ITERS) -> InstanceModel:
@@ -85,8 +87,10 @@ def build_instance_model(est, model_points, *, k: int = 10, iters: int = INSTANC
     sub = q[farthest_point_order(q.astype(np.float32), min(TEMPLATE_POINTS, len(q)))]  # [M', 3] m
     template = sub / est.scale @ A.T + b                                        # [M', 3] model units, learned frame
     dense = q if len(q) <= VERIFY_POINTS else q[farthest_point_order(q.astype(np.float32), VERIFY_POINTS)]
+    from scipy.spatial import cKDTree
+    dense = np.asarray(dense, np.float64)
     return InstanceModel(points_m=sub, template=template, normals=point_normals(template), A=A, b=b, k=k, iters=iters,
-                         verify_m=np.asarray(dense, np.float64))
+                         verify_m=dense, verify_tree=cKDTree(dense))
 
 
 def turned_fits(points: np.ndarray, template: np.ndarray, R: np.ndarray, t: np.ndarray, normals=None) -> tuple:

@@ -47,11 +47,12 @@ def other_cluster_gates(points: np.ndarray, min_depth: float = 0.1, max_depth: f
     return gates
 
 
-def fit_shares(rotations, translations, model_points: np.ndarray, crops: list) -> np.ndarray:
+def fit_shares(rotations, translations, model_points: np.ndarray, crops: list, tree=None) -> np.ndarray:
     """[C] float: for each candidate c, the share of its crop's points within ``NEAR_M`` of the model posed by it.
 
     Convention: ``rotations`` [C, 3, 3], ``translations`` [C, 3] metres (camera ← CAD); ``model_points`` [M, 3]
-    metres, CAD frame; ``crops``: C arrays [P_c, 3] metres, camera frame.
+    metres, CAD frame; ``crops``: C arrays [P_c, 3] metres, camera frame. Each crop is taken into the CAD frame and
+    searched in ``tree`` (a ``scipy.spatial.cKDTree`` of ``model_points``, built here when not given).
     """
     from scipy.spatial import cKDTree
 
@@ -62,12 +63,13 @@ def fit_shares(rotations, translations, model_points: np.ndarray, crops: list) -
             or len(crops) != len(R):
         raise InvalidPointsError(f"fit_shares needs R [C, 3, 3], t [C, 3], model [M, 3] and C crops; got {R.shape}, "
                                  f"{t.shape}, {Q.shape}, {len(crops)} crops")
+    tree = cKDTree(Q) if tree is None else tree
     shares = np.zeros(len(R))
     for c, X in enumerate(crops):
-        X = np.asarray(X, np.float64)                                          # [P, 3] m
+        X = np.asarray(X, np.float64)                                          # [P, 3] m, camera frame
         if X.ndim != 2 or X.shape[1] != 3 or not len(X):
             raise InvalidPointsError(f"fit_shares: crop {c} must be [P ≥ 1, 3] metres, got {X.shape}")
-        d, _ = cKDTree(Q @ R[c].T + t[c]).query(X, distance_upper_bound=NEAR_M)   # [P], inf beyond the bound
+        d, _ = tree.query((X - t[c]) @ R[c], distance_upper_bound=NEAR_M)     # [P] in the CAD frame, inf beyond
         shares[c] = np.count_nonzero(d < NEAR_M) / len(X)
     return shares
 
@@ -94,11 +96,13 @@ def see_through_share(R, t, model_points: np.ndarray, depth_m: np.ndarray, K) ->
     u, v, z = u[inside], v[inside], z[inside]
     if not len(z):
         return 0.0
-    pix = v * W + u                                                             # [M''] flat pixel index
-    nearest = np.full(H * W, np.inf)
+    u0, v0 = int(u.min()), int(v.min())
+    w = int(u.max()) - u0 + 1
+    pix = (v - v0) * w + (u - u0)                                               # [M''] pixel in the model's window
+    nearest = np.full((int(v.max()) - v0 + 1) * w, np.inf)
     np.minimum.at(nearest, pix, z)                                              # z-buffer of the model points
     visible = z <= nearest[pix] + FRONT_M                                       # [M''] bool
-    seen = d.reshape(-1)[pix[visible]]                                          # [V] observed depth, metres
+    seen = d[v[visible], u[visible]]                                            # [V] observed depth, metres
     valid = seen > 0
     if not valid.any():
         return 0.0
