@@ -11,6 +11,7 @@ from equipose import errors  # noqa: F401  (cheap, always available)
 _LAZY = {
     "PoseEstimator": ("equipose.runtime.estimator", "PoseEstimator"),
     "PoseResult": ("equipose.runtime.result", "PoseResult"),
+    "load_model_points": ("equipose.core.model_points", "load_model_points"),
 }
 
 __all__ = ["__version__", "errors"] + sorted(_LAZY)

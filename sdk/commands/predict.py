@@ -46,6 +46,14 @@ def parse_up(text: str | None):
     return check_up(vals)
 
 
+def _unit(text: str):
+    """``--model-points-unit``: a unit name, or metres per file unit as a number."""
+    try:
+        return float(text)
+    except ValueError:
+        return text
+
+
 def load_mask(path) -> "np.ndarray":
     """A mask image (any non-zero pixel = object) → [H, W] bool. Raises ``RegionError``."""
     import cv2
@@ -83,6 +91,12 @@ def add_arguments(p):
     p.add_argument("--up", metavar="plane|x,y,z", default=None,
                    help="up prior for objects standing in their rest pose: 'plane' (the frame's table/floor) or a "
                         "camera-frame up direction, e.g. from an IMU (see PoseEstimator.predict)")
+    p.add_argument("--model-points", dest="model_points", metavar="FILE",
+                   help="instance-level mode: the object's own model (.xyz/.txt/.csv/.pts, .npy, .pcd points; .obj/.ply "
+                        "meshes, sampled on their surface) in its CAD frame; poses are that model's "
+                        "(PoseEstimator(model_points=...))")
+    p.add_argument("--model-points-unit", dest="model_points_unit", default="m",
+                   help="with --model-points: m (default), cm, mm, or metres per file unit")
     p.add_argument("--smoothing", type=float, default=0.0, help="temporal smoothing α in [0, 1) (default 0: raw)")
     p.add_argument("--hold-turns", dest="hold_turns", action="store_true",
                    help="a frame whose result is ambiguous keeps the track's half turn (and a mug with its handle out "
@@ -98,7 +112,11 @@ def run(args) -> int:
     if model is None:
         from equipose.models import demo_model_path
         model = demo_model_path()
-    est = PoseEstimator(model, threads=args.threads, profile=args.profile)
+    points = None
+    if args.model_points:
+        from equipose.core.model_points import load_model_points
+        points = load_model_points(args.model_points, _unit(args.model_points_unit))
+    est = PoseEstimator(model, threads=args.threads, profile=args.profile, model_points=points)
     if est.random_init:
         print(f"note: {pathlib.Path(model).name} has random weights (an export for tests or benchmarks): "
               "its poses are meaningless", file=sys.stderr)
