@@ -365,27 +365,30 @@ class PoseEstimator:
                                   support_planes=supports)
             for i, r in zip(slots, results):
                 out[i] = r
-            if self.instance is not None:                                       # the box's other clusters, posed
+            if self.instance is not None:                  # the pose against the frame; the box's other clusters
                 for j, i in enumerate(slots):
-                    if regions[i].get("mask") is None and crops[j].diagnostics.get("clusters", 0) >= 2:
-                        out[i] = self._other_clusters(depth_m, Kf, regions[i]["box"], out[i], crops[j], crop_options)
+                    out[i] = self._check_instance(depth_m, Kf, regions[i], out[i], crops[j], crop_options)
         return out
 
-    def _other_clusters(self, depth_m, K, box, result: PoseResult, crop, crop_options: dict) -> PoseResult:
-        """Instance mode, a box crop that found several depth clusters: where the pose is seen through
-        (``equipose.runtime.instance_clusters``), the box cropped again beyond and before the chosen cluster, each
-        crop posed, and the pose seen through least kept. Result extras ``clusters_tried``: [{"depth_m", "points",
-        "fit", "see_through"} (+ the re-crop's "min_depth", "max_depth" crop options)] per candidate, the
-        box-evidence crop first; ``cluster_choice``: "box" or "fit"."""
+    def _check_instance(self, depth_m, K, region: dict, result: PoseResult, crop, crop_options: dict) -> PoseResult:
+        """Instance mode: the pose checked against its crop and the depth frame (``equipose.runtime.instance_clusters``:
+        result extras ``model_fit``, the share of the crop's points within 5 mm of the posed model, and
+        ``see_through``, the share of its visible points the camera sees through). A box crop (no mask) that found
+        several depth clusters and whose pose is seen through is cropped again beyond and before the chosen cluster,
+        each crop posed, and the pose seen through least kept; then extras ``clusters_tried``: [{"depth_m", "points",
+        "fit", "see_through"} (+ the re-crop's "min_depth", "max_depth" crop options)] per candidate, the box-evidence
+        crop first, and ``cluster_choice``: "box" or "fit"."""
         t0 = time.perf_counter()
         model = self.instance.verify_m
         cands, crops, gates = [result], [crop], [{}]
         seen = [see_through_share(result.rotation, result.translation, model, depth_m, K)]
-        if seen[0] > SEE_THROUGH_MAX:
+        several = region.get("mask") is None and crop.diagnostics.get("clusters", 0) >= 2
+        if several and seen[0] > SEE_THROUGH_MAX:
             opts = _crop.check_crop_options({**self.crop_options, **crop_options})
             for gate in other_cluster_gates(crop.points, opts.get("min_depth", 0.1), opts.get("max_depth", 10.0)):
                 try:
-                    c = self.crop(depth_m, K, box=box, depth_unit="m", prevalidated=True, **{**crop_options, **gate})
+                    c = self.crop(depth_m, K, box=region["box"], depth_unit="m", prevalidated=True,
+                                  **{**crop_options, **gate})
                     prep = _crop.prepare_points(c.points, self.num_points, self.scale)
                     r = self._infer([prep], [c], [0.0], [0.0], [len(c.points)])[0]
                 except EquiposeError:                                           # nothing left there: no candidate
@@ -398,13 +401,16 @@ class PoseEstimator:
                             [c.points for c in crops], tree=self.instance.verify_tree)   # [C]
         best = choose_cluster(seen)
         chosen = cands[best]
-        chosen.extras["clusters_tried"] = [{"depth_m": round(float(np.median(c.points[:, 2])), 4),
-                                            "points": int(len(c.points)), "fit": round(float(f), 4),
-                                            "see_through": round(float(v), 4), **g}
-                                           for c, f, v, g in zip(crops, shares, seen, gates)]
-        chosen.extras["cluster_choice"] = "box" if best == 0 else "fit"
+        chosen.extras["model_fit"] = round(float(shares[best]), 4)
+        chosen.extras["see_through"] = round(float(seen[best]), 4)
+        if several:
+            chosen.extras["clusters_tried"] = [{"depth_m": round(float(np.median(c.points[:, 2])), 4),
+                                                "points": int(len(c.points)), "fit": round(float(f), 4),
+                                                "see_through": round(float(v), 4), **g}
+                                               for c, f, v, g in zip(crops, shares, seen, gates)]
+            chosen.extras["cluster_choice"] = "box" if best == 0 else "fit"
         extra = _ms(t0)
-        chosen.timings = {**result.timings, "other_clusters": extra, "total": result.timings["total"] + extra}
+        chosen.timings = {**result.timings, "model_check": extra, "total": result.timings["total"] + extra}
         return chosen
 
     def predict_auto(self, depth, K, depth_unit="mm", *, image_size=None, return_errors: bool = False,

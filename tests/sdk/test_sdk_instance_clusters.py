@@ -81,4 +81,18 @@ def test_real_frame_the_object_behind_the_one_in_front(demo_frame, model, box, c
     assert kept["see_through"] <= SEE_THROUGH_MAX and kept["fit"] > 0.6
     if choice == "fit":                                                         # the bottle's cluster, then its face
         assert tried[0]["see_through"] > SEE_THROUGH_MAX and tried[0]["depth_m"] < kept["depth_m"] - 0.1
-        assert r.timings["other_clusters"] > 0 and r.timings["total"] > r.timings["other_clusters"]
+    assert r.extras["model_fit"] == kept["fit"] and r.extras["see_through"] == kept["see_through"]
+    assert r.timings["model_check"] > 0 and r.timings["total"] > r.timings["model_check"]
+
+
+def test_every_instance_result_reports_its_fit_and_see_through(demo_frame):
+    depth, K_c, models = demo_frame
+    pts = np.loadtxt(models / "035_power_drill" / "points.xyz")[:, :3]
+    est = PoseEstimator("can-tabletop", threads=1, model_points=pts)
+    box = (45, 250, 235, 115)
+    r = est.predict(depth, K_c, box=box, depth_unit=1e-4)                      # one cluster: nothing re-cropped
+    assert "clusters_tried" not in r.extras and r.extras["model_fit"] > 0.8 and r.extras["see_through"] < 0.3
+    mask = np.zeros(depth.shape, bool)
+    mask[250:365, 45:280] = True
+    rm = est.predict(depth, K_c, mask=mask, depth_unit=1e-4)                   # a mask crop is checked too
+    assert 0.0 <= rm.extras["model_fit"] <= 1.0 and 0.0 <= rm.extras["see_through"] <= 1.0
