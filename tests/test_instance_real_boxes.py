@@ -50,3 +50,26 @@ def test_crop_fit_counts_the_points_near_the_posed_model():
     assert share == 1.0 and rms < 1e-9
     share, rms = fit(result, np.vstack([seen, seen[:500] + [0.0, 0.0, 0.2]]), model)   # as many 20 cm away
     assert share == pytest.approx(0.5) and rms < 1e-9
+
+
+def _graspnet_tool():
+    spec = importlib.util.spec_from_file_location("instance_graspnet",
+                                                  ROOT / "tools" / "bench" / "instance_graspnet.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def test_graspnet_tool_prompts_from_the_visible_model_and_its_add_s():
+    from scipy.spatial.transform import Rotation
+    tool = _graspnet_tool()
+    K = np.array([[600.0, 0.0, 320.0], [0.0, 600.0, 240.0], [0.0, 0.0, 1.0]])
+    depth = np.full((480, 640), 1.0)                                            # a wall 1 m away
+    Y = np.array([[0.0, 0.0, 1.002], [0.1, 0.0, 0.9], [0.0, 0.05, 1.5], [0.0, 0.0, -1.0]])
+    rows, cols = tool.visible_pixels(Y, depth, K)                               # only the point on the wall
+    assert list(rows) == [240] and list(cols) == [320]
+    P = np.random.default_rng(0).uniform(-0.05, 0.05, (500, 3))
+    R = Rotation.from_euler("z", 30, degrees=True).as_matrix()
+    t = np.array([0.0, 0.0, 0.8])
+    assert tool.add_s_mm(P, R, t, R, t) == 0.0
+    assert 5.0 < tool.add_s_mm(P, R, t, R, t + [0.0, 0.0, 0.01]) <= 10.0      # 1 cm off: at most 10 mm
