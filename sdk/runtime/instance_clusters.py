@@ -1,5 +1,6 @@
-"""Instance-level mode with a box prompt: where the chosen cluster's pose claims space the camera sees through, the
-box's other depth clusters are posed too.
+"""Instance-level mode: each pose checked against its crop (``fit_shares``) and the depth frame
+(``see_through_share``); with a box prompt, where the chosen cluster's pose claims space the camera sees through, the
+box's other depth clusters are posed too (``PoseEstimator`` reports both shares in every instance result's extras).
 
 A box crop keeps one depth cluster, chosen by box evidence (``equipose.preprocess.surfaces.box_object_cluster``: the
 cluster the box is centred on, that fills it, that does not run on past its sides). Where the object stands behind
@@ -21,7 +22,7 @@ import numpy as np
 
 from equipose.core.errors import InvalidPointsError
 
-__all__ = ["GAP_M", "NEAR_M", "SEE_THROUGH_M", "SEE_THROUGH_MAX", "other_cluster_gates", "fit_shares",
+__all__ = ["GAP_M", "NEAR_M", "SEE_THROUGH_M", "SEE_THROUGH_MAX", "FRONT_M", "other_cluster_gates", "fit_shares",
            "see_through_share", "choose_cluster"]
 
 GAP_M = 0.01            # a re-crop's depth gate starts this far beyond (ends this far before) the chosen cluster
@@ -37,7 +38,10 @@ def other_cluster_gates(points: np.ndarray, min_depth: float = 0.1, max_depth: f
 
     Convention: ``points`` [P, 3] metres, the chosen crop (camera frame; depth = z). Returns a list of dicts.
     """
-    z = np.asarray(points, np.float64)[:, 2]                                   # [P] metres
+    p = np.asarray(points, np.float64)
+    if p.ndim != 2 or p.shape[1] != 3 or not len(p):
+        raise InvalidPointsError(f"other_cluster_gates needs the chosen crop's points [P ≥ 1, 3] metres, got {p.shape}")
+    z = p[:, 2]                                                                 # [P] metres
     gates = []
     beyond, before = float(z.max()) + GAP_M, float(z.min()) - GAP_M
     if beyond < max_depth:
