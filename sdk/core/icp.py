@@ -237,8 +237,10 @@ def _rotation_from_vector(w0, w1, w2, M) -> None:
 
 
 @njit(cache=True, nogil=True)
-def _icp_plane_loop(x, Y, normals, R, t, iters, tol, res):
-    """Point-to-plane ICP of every start, in place on R [J, 3, 3], t [J, 3], res [J] (see ``icp_point_to_plane``)."""
+def _icp_plane_loop(x, Y, normals, R, t, iters, tol, res, max_dist):
+    """Point-to-plane ICP of every start, in place on R [J, 3, 3], t [J, 3], res [J] (see ``icp_point_to_plane``);
+    ``max_dist`` > 0: pairs farther apart leave the step, and each adds ``max_dist``² to the residual."""
+    trim2 = max_dist * max_dist if max_dist > 0 else np.inf
     N = x.shape[0]
     stack, bound, dist, bits = make_scratch(Y.shape[1])
     pairs = np.empty(N, np.int64)
@@ -254,6 +256,7 @@ def _icp_plane_loop(x, Y, normals, R, t, iters, tol, res):
             A[:] = 0.0
             b[:] = 0.0
             r1 = 0.0
+            kept = 0
             for n in range(N):
                 px, py, pz = x[n, 0] - tj[0], x[n, 1] - tj[1], x[n, 2] - tj[2]
                 q[0] = Rj[0, 0] * px + Rj[1, 0] * py + Rj[2, 0] * pz            # Rᵀ(x − t): template frame
@@ -265,7 +268,12 @@ def _icp_plane_loop(x, Y, normals, R, t, iters, tol, res):
                     m = nearest_brute(soa, centre, 0, q, dist, bits)
                 pairs[n] = m
                 d0, d1, d2 = q[0] - Y0[m, 0], q[1] - Y0[m, 1], q[2] - Y0[m, 2]
-                r1 += d0 * d0 + d1 * d1 + d2 * d2
+                dd = d0 * d0 + d1 * d1 + d2 * d2
+                if dd > trim2:                                                  # trimmed: not this surface's
+                    r1 += trim2
+                    continue
+                r1 += dd
+                kept += 1
                 n0, n1, n2 = normals[m, 0], normals[m, 1], normals[m, 2]
                 e = d0 * n0 + d1 * n1 + d2 * n2                                 # distance along the normal
                 J6[0], J6[1], J6[2] = q[1] * n2 - q[2] * n1, q[2] * n0 - q[0] * n2, q[0] * n1 - q[1] * n0
@@ -275,7 +283,7 @@ def _icp_plane_loop(x, Y, normals, R, t, iters, tol, res):
                     for c in range(a, 6):
                         A[a, c] += J6[a] * J6[c]
             res[j] = r1 / N
-            if it == iters:
+            if it == iters or kept < 6:
                 break
             damp = 1e-9 * (A[0, 0] + A[1, 1] + A[2, 2] + A[3, 3] + A[4, 4] + A[5, 5]) + 1e-15
             for a in range(6):
@@ -295,7 +303,8 @@ def _icp_plane_loop(x, Y, normals, R, t, iters, tol, res):
 
 
 def icp_point_to_plane(observed: np.ndarray, template: np.ndarray, normals: np.ndarray, R0: np.ndarray,
-                       t0: np.ndarray, iters: int = 20, tol: float = 1e-7, workers: int | None = None) -> tuple:
+                       t0: np.ndarray, iters: int = 20, tol: float = 1e-7, workers: int | None = None,
+                       max_dist: float = 0.0) -> tuple:
     """Point-to-plane ICP from several starts at once (observation → template).
 
     Convention: ``observed`` [N ≥ 6, 3]; ``template`` [M ≥ 3, 3] with unit ``normals`` [M, 3] (any sign, e.g.
@@ -305,7 +314,9 @@ def icp_point_to_plane(observed: np.ndarray, template: np.ndarray, normals: np.n
     A start stops when a step is below ``tol`` (radians, and template units) or after ``iters`` steps. Returns
     (R [J, 3, 3], t [J, 3], residual [J]) with the residual of the returned pose as ``icp_multi`` reports it (the
     mean squared point-to-point distance observation → template), so the two rank alike. ``workers``: as in
-    ``icp_multi``.
+    ``icp_multi``. ``max_dist`` > 0 (template units) trims: an observed point farther than it from its nearest
+    template point takes no part in the step and adds ``max_dist``² to the residual (a truncated mean: the points of
+    a neighbour in the crop cannot pull the pose). A start with fewer than 6 pairs left keeps its pose.
     """
     x = np.ascontiguousarray(observed, np.float64)                             # [N, 3]
     Y = np.ascontiguousarray(np.asarray(template, np.float64)[None])           # [1, M, 3]
@@ -320,5 +331,8 @@ def icp_point_to_plane(observed: np.ndarray, template: np.ndarray, normals: np.n
         raise InvalidPointsError(f"ICP starts must be R0 [J, 3, 3] and t0 [J, 3], got {R.shape}, {t.shape}")
     res = np.zeros(J)
     parts = split_ranges(J, workers_in_scope() if workers is None else workers) if J else []
-    run_parts(_icp_plane_loop, [(x, Y, nrm, R[a:b], t[a:b], int(iters), float(tol), res[a:b]) for a, b in parts])
+    if not (np.isfinite(max_dist) and max_dist >= 0):
+        raise InvalidPointsError(f"point-to-plane ICP max_dist must be ≥ 0 (0: no trimming), got {max_dist!r}")
+    run_parts(_icp_plane_loop, [(x, Y, nrm, R[a:b], t[a:b], int(iters), float(tol), res[a:b], float(max_dist))
+                                for a, b in parts])
     return R, t, res

@@ -29,8 +29,8 @@ from equipose.core.normals import point_normals
 from equipose.preprocess import check_points, prepare_points
 
 __all__ = ["InstanceModel", "build_instance_model", "INSTANCE_ITERS", "COARSE_ITERS", "COARSE_POINTS",
-           "SUB_TEMPLATE_POINTS", "FINE_K", "CONVERGED_STEP", "POLISH_ITERS", "TURN_CONVERGE_ITERS", "turned_fits",
-           "undecided_turn", "better_turn"]
+           "SUB_TEMPLATE_POINTS", "FINE_K", "CONVERGED_STEP", "POLISH_ITERS", "TURN_CONVERGE_ITERS", "TRIM_M",
+           "TRIM_GATE", "turned_fits", "undecided_turn", "better_turn", "trimmed_search"]
 
 TEMPLATE_POINTS = 1024          # model points kept (FPS) for ICP
 VERIFY_POINTS = 8192            # model points kept (FPS) to check a pose against a crop (instance_clusters)
@@ -46,6 +46,12 @@ TURN_ANGLES_DEG = (60.0, 120.0, 180.0, 240.0, 300.0)   # turns of the chosen pos
 TURN_ITERS = 6                  # ICP steps of each turned start
 TURN_TEMPLATE_POINTS = 256      # template points of the turn test (a dense product instead of a k-d tree)
 TURN_MIN_DEG = 30.0             # a turned start that ends closer than this to the chosen pose slid back to it
+TRIM_M = 0.01                   # trimmed search: crop points farther than this (metres) from the model do not pull
+TRIM_GATE = 0.2                 # ... run where the winner's truncated residual exceeds this × TRIM_M²
+TRIM_POINTS = 64                # ... every coarse start, on this many observed points (FPS prefix) ...
+TRIM_ITERS = 6                  # ... for this many point-to-plane steps against the sub-template ...
+TRIM_K = 3                      # ... and the best this many on all points against the whole template
+TRIM_FINE_ITERS = 15
 
 
 @dataclass
@@ -121,6 +127,24 @@ def turned_fits(points: np.ndarray, template: np.ndarray, R: np.ndarray, t: np.n
                                          tol=CONVERGED_STEP)
     cos = (np.einsum("kij,ij->k", Rf, R) - 1.0) / 2.0                           # [T] cos of the angle to the pose
     return float(base[0]), Rf, tf, res, cos < np.cos(np.radians(TURN_MIN_DEG))
+
+
+def trimmed_search(points: np.ndarray, template: np.ndarray, normals: np.ndarray, R0: np.ndarray, t0: np.ndarray,
+                   max_dist: float) -> tuple:
+    """The pose that fits the most of the view within ``max_dist``: every start (R0 [J, 3, 3], t0 [J, 3]) gets
+    ``TRIM_ITERS`` trimmed point-to-plane steps (``equipose.core.icp.icp_point_to_plane(max_dist=...)``) on the first
+    ``TRIM_POINTS`` observed points against the first ``SUB_TEMPLATE_POINTS`` template points, the ``TRIM_K`` best
+    ``TRIM_FINE_ITERS`` more on all of them. Convention: model units, ``points`` [N, 3] and ``template`` [M, 3]
+    FPS-ordered, unit template ``normals`` [M, 3]. Returns (R [3, 3], t [3], its truncated residual on all points)."""
+    from equipose.core.icp import icp_point_to_plane
+    sub = min(SUB_TEMPLATE_POINTS, len(template))
+    R, t, r = icp_point_to_plane(points[:TRIM_POINTS], template[:sub], normals[:sub], R0, t0, iters=TRIM_ITERS,
+                                 tol=CONVERGED_STEP, max_dist=max_dist)
+    best = np.argsort(r)[:TRIM_K]                                               # [K] lowest truncated residuals
+    R, t, r = icp_point_to_plane(points, template, normals, R[best], t[best], iters=TRIM_FINE_ITERS,
+                                 tol=CONVERGED_STEP, max_dist=max_dist)
+    j = int(np.argmin(r))
+    return R[j], t[j], float(r[j])
 
 
 def undecided_turn(points: np.ndarray, template: np.ndarray, R: np.ndarray, t: np.ndarray, margin: float,

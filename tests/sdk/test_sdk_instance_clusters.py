@@ -96,3 +96,14 @@ def test_every_instance_result_reports_its_fit_and_see_through(demo_frame):
     mask[250:365, 45:280] = True
     rm = est.predict(depth, K_c, mask=mask, depth_unit=1e-4)                   # a mask crop is checked too
     assert 0.0 <= rm.extras["model_fit"] <= 1.0 and 0.0 <= rm.extras["see_through"] <= 1.0
+
+
+def test_real_frame_a_crop_holding_a_neighbour_is_posed_by_the_trimmed_search(data_root):
+    import cv2
+    d = data_root / "ycb_posecnn"
+    depth = cv2.imread(str(d / "demo_images" / "000003-depth.png"), cv2.IMREAD_UNCHANGED)   # the can before the tin
+    K_c = np.array([[1066.778, 0.0, 312.9869], [0.0, 1067.487, 241.3109], [0.0, 0.0, 1.0]])
+    pts = np.loadtxt(d / "models" / "005_tomato_soup_can" / "points.xyz")[:, :3]
+    est = PoseEstimator("can-tabletop", threads=1, model_points=pts)
+    r = est.predict(depth, K_c, box=(178, 298, 101, 158), depth_unit=1e-4)
+    assert r.extras["trimmed"] and r.extras["model_fit"] > 0.85              # untrimmed: 0.45 of its crop

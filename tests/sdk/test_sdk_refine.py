@@ -156,6 +156,30 @@ def test_point_to_plane_icp_recovers_a_pose_that_point_to_point_leaves_creeping(
     assert rotation_angle_deg(R[0], R_true) < rotation_angle_deg(Rp[0], R_true)
 
 
+def test_trimmed_point_to_plane_icp_is_not_pulled_by_a_neighbour_in_the_crop():
+    from equipose.core.icp import icp_point_to_plane
+    rng = np.random.default_rng(9)
+    tmpl, normals = _box_surface(rng, 1024)
+    R_true = random_rotations(1, seed=10)[0]
+    t_true = np.array([0.0, 0.0, 0.6])
+    obs = _box_surface(np.random.default_rng(11), 400)[0] @ R_true.T + t_true
+    beside = rng.uniform(-0.05, 0.05, (250, 3)) + t_true + [0.12, 0.0, 0.0]    # a neighbour's points, 12 cm away
+    x = np.vstack([obs, beside])
+    R0 = (Rotation.from_rotvec([0.05, -0.04, 0.03]).as_matrix() @ R_true)[None]
+    t0 = (t_true + [0.005, -0.005, 0.0])[None]
+    Ru, tu, _ = icp_point_to_plane(x, tmpl, normals, R0, t0, iters=30)
+    Rt, tt, rt = icp_point_to_plane(x, tmpl, normals, R0, t0, iters=30, max_dist=0.01)
+    assert rotation_angle_deg(Rt[0], R_true) < 0.5 and np.linalg.norm(tt[0] - t_true) < 0.002
+    assert np.linalg.norm(tu[0] - t_true) > 0.01                                # untrimmed: pulled towards it
+    _, _, ru = icp_point_to_plane(x, tmpl, normals, Ru, tu, iters=0, max_dist=0.01)
+    assert rt[0] < ru[0] <= 0.01 ** 2                                           # truncated: at most max_dist²
+    _, _, r_same = icp_point_to_plane(obs, tmpl, normals, R0, t0, iters=30, max_dist=1.0)
+    _, _, r_plain = icp_point_to_plane(obs, tmpl, normals, R0, t0, iters=30)
+    np.testing.assert_allclose(r_same, r_plain, rtol=1e-9)                     # nothing beyond it: the plain ICP
+    with pytest.raises(InvalidPointsError):
+        icp_point_to_plane(x, tmpl, normals, R0, t0, max_dist=-1.0)
+
+
 def test_point_to_plane_icp_refuses_mismatched_normals():
     from equipose.core.icp import icp_point_to_plane
     with pytest.raises(InvalidPointsError):

@@ -6,6 +6,11 @@ CAD frame. The winner's turns about the model's principal axes get a few ICP ste
 (``equipose.runtime.instance.turned_fits``): one that fits better is converged and takes the winner's place when it
 ends better (``better_turn``: the hypotheses can all miss the true pose's basin), and ``ambiguous`` is also set when
 one fits within the flip margin (10 %): a turn about a symmetry axis that the view cannot decide (``undecided_turn``).
+Before the turns, where the winner's truncated residual (crop points farther than ``TRIM_M`` from the model count as
+``TRIM_M``) exceeds ``TRIM_GATE`` × ``TRIM_M``², i.e. much of the crop lies off the model, a trimmed search
+(``trimmed_search``: every coarse start again, point-to-plane with those points left out) takes the winner's place
+where its truncated residual is lower: the points of a neighbour in the crop pull every untrimmed pose (result extra
+``trimmed``); its pose then skips ``better_turn``, whose residuals are untrimmed.
 
 Convention: model units, centred camera frame; the result is the CAD model's pose (camera ← CAD), no symmetry.
 """
@@ -14,9 +19,10 @@ from __future__ import annotations
 import numpy as np
 
 from equipose.runtime.hypotheses import AMBIGUOUS_MARGIN, select_hypothesis
+from equipose.core.icp import icp_point_to_plane
 from equipose.runtime.instance import (COARSE_ITERS, COARSE_POINTS, CONVERGED_STEP, FINE_K, POLISH_ITERS,
-                                       SUB_TEMPLATE_POINTS, TURN_CONVERGE_ITERS, better_turn, turned_fits,
-                                       undecided_turn)
+                                       SUB_TEMPLATE_POINTS, TRIM_GATE, TRIM_M, TURN_CONVERGE_ITERS, better_turn,
+                                       trimmed_search, turned_fits, undecided_turn)
 from equipose.runtime.refine import refine_hypotheses
 from equipose.runtime.stage import ObjectState, Stage, register_stage
 
@@ -44,6 +50,7 @@ class InstanceStage(Stage):
         x, Y = state.points, inst.template                                      # FPS-ordered: prefixes are even
         R, t, s = refine_hypotheses(x[:COARSE_POINTS], Y[:SUB_TEMPLATE_POINTS], state.R, state.t, state.scores,
                                     k=len(state.scores), iters=COARSE_ITERS, bidirectional=False)
+        coarse = (R.copy(), t.copy())                                           # every start, for the trimmed search
         # the k best converge point-to-plane on part of the template, the FINE_K best of those on all of it; a
         # point-to-point polish of those gives the precision and the residual every hypothesis is ranked by
         R, t, s = refine_hypotheses(x, Y[:SUB_TEMPLATE_POINTS], R, t, s, k=inst.k, iters=inst.iters,
@@ -56,8 +63,20 @@ class InstanceStage(Stage):
         sel = select_hypothesis(R_obj, t_obj, s, symmetry="none", top_k=state.top_k, prefer=state.prefer,
                                 prefer_margin=state.prefer_margin)
         i = sel.index
+        # what stands beside the object in its crop pulls every pose above; the trimmed search lets only the points
+        # within TRIM_M of the model pull, from every start, and takes the winner's place where it fits more
+        trim = TRIM_M / self.scale                                              # model units
+        _, _, own = icp_point_to_plane(x, Y, inst.normals, R[i][None], t[i][None], iters=0, max_dist=trim)
+        trimmed = False
+        if own[0] > TRIM_GATE * trim ** 2:                                      # much of the crop off the model
+            R_t, t_t, r_t = trimmed_search(x, Y, inst.normals, *coarse, trim)
+            trimmed = r_t < float(own[0])
+        state.extras["trimmed"] = bool(trimmed)
+        if trimmed:
+            R[i], t[i] = R_t, t_t
+            R_obj[i], t_obj[i] = R[i] @ inst.A, R[i] @ inst.b + t[i]
         fits = turned_fits(state.points, inst.template, R[i], t[i], inst.normals)   # the winner's principal-axis turns
-        better = better_turn(state.points, inst.template, float(s[i]), fits, TURN_CONVERGE_ITERS)
+        better = None if trimmed else better_turn(state.points, inst.template, float(s[i]), fits, TURN_CONVERGE_ITERS)
         if better is not None:                                                  # a turn fits better: it wins
             R[i], t[i], s[i] = better
             R_obj[i], t_obj[i] = R[i] @ inst.A, R[i] @ inst.b + t[i]
