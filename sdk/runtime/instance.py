@@ -50,8 +50,9 @@ TRIM_M = 0.01                   # trimmed search: crop points farther than this 
 TRIM_GATE = 0.2                 # ... run where the winner's truncated residual exceeds this × TRIM_M²
 TRIM_POINTS = 64                # ... every coarse start, on this many observed points (FPS prefix) ...
 TRIM_ITERS = 6                  # ... for this many point-to-plane steps against the sub-template ...
-TRIM_K = 3                      # ... and the best this many on all points against the whole template
-TRIM_FINE_ITERS = 15
+TRIM_K = 10                     # ... the best this many on all points against the whole template ...
+TRIM_SORT_ITERS = 8             # ... for this many steps, and the best of those ...
+TRIM_FINE_ITERS = 15            # ... for this many more
 
 
 @dataclass
@@ -134,17 +135,20 @@ def trimmed_search(points: np.ndarray, template: np.ndarray, normals: np.ndarray
     """The pose that fits the most of the view within ``max_dist``: every start (R0 [J, 3, 3], t0 [J, 3]) gets
     ``TRIM_ITERS`` trimmed point-to-plane steps (``equipose.core.icp.icp_point_to_plane(max_dist=...)``) on the first
     ``TRIM_POINTS`` observed points against the first ``SUB_TEMPLATE_POINTS`` template points, the ``TRIM_K`` best
-    ``TRIM_FINE_ITERS`` more on all of them. Convention: model units, ``points`` [N, 3] and ``template`` [M, 3]
+    ``TRIM_SORT_ITERS`` more on all of them against the whole template, and the best of those ``TRIM_FINE_ITERS``
+    more. Convention: model units, ``points`` [N, 3] and ``template`` [M, 3]
     FPS-ordered, unit template ``normals`` [M, 3]. Returns (R [3, 3], t [3], its truncated residual on all points)."""
     from equipose.core.icp import icp_point_to_plane
     sub = min(SUB_TEMPLATE_POINTS, len(template))
     R, t, r = icp_point_to_plane(points[:TRIM_POINTS], template[:sub], normals[:sub], R0, t0, iters=TRIM_ITERS,
                                  tol=CONVERGED_STEP, max_dist=max_dist)
     best = np.argsort(r)[:TRIM_K]                                               # [K] lowest truncated residuals
-    R, t, r = icp_point_to_plane(points, template, normals, R[best], t[best], iters=TRIM_FINE_ITERS,
+    R, t, r = icp_point_to_plane(points, template, normals, R[best], t[best], iters=TRIM_SORT_ITERS,
                                  tol=CONVERGED_STEP, max_dist=max_dist)
     j = int(np.argmin(r))
-    return R[j], t[j], float(r[j])
+    R, t, r = icp_point_to_plane(points, template, normals, R[j][None], t[j][None], iters=TRIM_FINE_ITERS,
+                                 tol=CONVERGED_STEP, max_dist=max_dist)
+    return R[0], t[0], float(r[0])
 
 
 def undecided_turn(points: np.ndarray, template: np.ndarray, R: np.ndarray, t: np.ndarray, margin: float,
