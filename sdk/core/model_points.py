@@ -15,11 +15,11 @@ import pathlib
 import numpy as np
 
 from equipose.core.errors import InvalidPointsError
+from equipose.core.units import metres_per_unit
 
 __all__ = ["MESH_POINTS", "load_model_points", "sample_surface"]
 
 MESH_POINTS = 4096          # points sampled on a mesh's surface
-UNITS = {"m": 1.0, "cm": 0.01, "mm": 0.001}
 _PLY_TYPES = {"char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1", "short": "i2", "int16": "i2",
               "ushort": "u2", "uint16": "u2", "int": "i4", "int32": "i4", "uint": "u4", "uint32": "u4",
               "float": "f4", "float32": "f4", "double": "f8", "float64": "f8"}
@@ -77,17 +77,7 @@ def sample_surface(vertices: np.ndarray, triangles: np.ndarray, count: int = MES
 
 
 def _unit_scale(unit) -> float:
-    if isinstance(unit, str):
-        if unit not in UNITS:
-            raise InvalidPointsError(f"model points unit must be 'm', 'cm', 'mm' or metres per unit, got {unit!r}")
-        return UNITS[unit]
-    try:
-        s = float(unit)
-    except (TypeError, ValueError):
-        raise InvalidPointsError(f"model points unit must be 'm', 'cm', 'mm' or metres per unit, got {unit!r}") from None
-    if not (np.isfinite(s) and s > 0):
-        raise InvalidPointsError(f"model points unit as a number is metres per file unit and must be > 0, got {s}")
-    return s
+    return metres_per_unit(unit, "model points unit", InvalidPointsError, "file unit")
 
 
 def _read_text(path) -> np.ndarray:

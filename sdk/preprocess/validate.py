@@ -21,6 +21,7 @@ from numba import njit
 from equipose.core.errors import (DepthDtypeError, DepthUnitError, EmptyDepthError, InvalidPointsError,
                                    RegionError)
 from equipose.core.order_statistics import median
+from equipose.core.units import metres_per_unit
 # the intrinsics check lives in the core (sources use it too); re-exported here as part of preprocess's API
 from equipose.core.intrinsics import CENTRE_TOLERANCE, FOCAL_RANGE, check_intrinsics  # noqa: F401
 
@@ -32,18 +33,7 @@ PLAUSIBLE_DEPTH_M = (0.05, 30.0)  # median valid depth must fall in here for the
 
 def _unit_scale(depth_unit) -> float:
     """metres per stored depth unit."""
-    if isinstance(depth_unit, str):
-        table = {"mm": 1e-3, "m": 1.0, "cm": 1e-2}
-        if depth_unit not in table:
-            raise DepthUnitError(f"depth_unit must be 'mm', 'm', 'cm' or metres per unit as a number, got {depth_unit!r}")
-        return table[depth_unit]
-    try:
-        s = float(depth_unit)
-    except (TypeError, ValueError):
-        raise DepthUnitError(f"depth_unit must be 'mm', 'm', 'cm' or a positive number, got {depth_unit!r}") from None
-    if not (math.isfinite(s) and s > 0):
-        raise DepthUnitError(f"depth_unit as a number is metres per stored unit and must be positive, got {s}")
-    return s
+    return metres_per_unit(depth_unit, "depth_unit", DepthUnitError)
 
 
 def depth_to_metres(depth, depth_unit="mm", *, check_plausible: bool = True) -> np.ndarray:

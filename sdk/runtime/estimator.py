@@ -367,24 +367,24 @@ class PoseEstimator:
                 out[i] = r
             if self.instance is not None:                  # the pose against the frame; the box's other clusters
                 for j, i in enumerate(slots):
-                    out[i] = self._check_instance(depth_m, Kf, regions[i], out[i], crops[j], crop_options)
+                    out[i] = self._check_instance(depth_m, Kf, regions[i], out[i], crops[j], crop_options, opts)
         return out
 
-    def _check_instance(self, depth_m, K, region: dict, result: PoseResult, crop, crop_options: dict) -> PoseResult:
+    def _check_instance(self, depth_m, K, region: dict, result: PoseResult, crop, crop_options: dict,
+                        opts: dict) -> PoseResult:
         """Instance mode: the pose checked against its crop and the depth frame (``equipose.runtime.instance_clusters``:
         result extras ``model_fit``, the share of the crop's points within 5 mm of the posed model, and
         ``see_through``, the share of its visible points the camera sees through). A box crop (no mask) that found
         several depth clusters and whose pose is seen through is cropped again beyond and before the chosen cluster,
         each crop posed, and the pose seen through least kept; then extras ``clusters_tried``: [{"depth_m", "points",
         "fit", "see_through"} (+ the re-crop's "min_depth", "max_depth" crop options)] per candidate, the box-evidence
-        crop first, and ``cluster_choice``: "box" or "fit"."""
+        crop first, and ``cluster_choice``: "box" or "fit". ``opts``: the frame's checked crop options (depth range)."""
         t0 = time.perf_counter()
         model = self.instance.verify_m
         cands, crops, gates = [result], [crop], [{}]
         seen = [see_through_share(result.rotation, result.translation, model, depth_m, K)]
         several = region.get("mask") is None and crop.diagnostics.get("clusters", 0) >= 2
         if several and seen[0] > SEE_THROUGH_MAX:
-            opts = _crop.check_crop_options({**self.crop_options, **crop_options})
             for gate in other_cluster_gates(crop.points, opts.get("min_depth", 0.1), opts.get("max_depth", 10.0)):
                 try:
                     c = self.crop(depth_m, K, box=region["box"], depth_unit="m", prevalidated=True,

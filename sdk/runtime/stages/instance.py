@@ -18,8 +18,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from equipose.runtime.hypotheses import AMBIGUOUS_MARGIN, select_hypothesis
 from equipose.core.icp import icp_point_to_plane
+from equipose.runtime.hypotheses import AMBIGUOUS_MARGIN, select_hypothesis
 from equipose.runtime.instance import (COARSE_ITERS, COARSE_POINTS, CONVERGED_STEP, FINE_K, POLISH_ITERS,
                                        SUB_TEMPLATE_POINTS, TRIM_GATE, TRIM_M, TURN_CONVERGE_ITERS, better_turn,
                                        trimmed_search, turned_fits, undecided_turn)
