@@ -107,3 +107,22 @@ def test_real_frame_a_crop_holding_a_neighbour_is_posed_by_the_trimmed_search(da
     est = PoseEstimator("can-tabletop", threads=1, model_points=pts)
     r = est.predict(depth, K_c, box=(178, 298, 101, 158), depth_unit=1e-4)
     assert r.extras["trimmed"] and r.extras["model_fit"] > 0.85              # untrimmed: 0.45 of its crop
+
+
+def test_re_crops_stand_on_the_first_crops_support_plane(demo_frame):
+    """Every re-crop of the box is cut with the support plane found under the first crop and posed with it (the
+    confidence reads the pose against it), not with a plane refitted to the whole frame."""
+    depth, K_c, models = demo_frame
+    pts = np.loadtxt(models / "003_cracker_box" / "points.xyz")[:, :3]
+    est = PoseEstimator("can-tabletop", threads=1, model_points=pts)
+    calls, infers = [], []
+    crop, infer = est.crop, est._infer
+    est.crop = lambda *a, **kw: calls.append(kw) or crop(*a, **kw)
+    est._infer = lambda *a, **kw: infers.append(kw.get("support_planes")) or infer(*a, **kw)
+    r = est.predict(depth, K_c, box=(292, 123, 190, 217), depth_unit=1e-4)
+    assert r.extras["cluster_choice"] == "fit" and len(calls) >= len(r.extras["clusters_tried"]) >= 2
+    first = calls[0]["support_plane"]
+    for kw in calls[1:]:
+        assert np.array_equal(kw["support_plane"][0], first[0]) and kw["support_plane"][1] == first[1]
+        assert "min_depth" in kw or "max_depth" in kw
+    assert all(s is not None and len(s) == 1 for s in infers[1:])               # each re-crop posed on its plane
