@@ -56,9 +56,10 @@ def test_a_right_axis_is_kept():
 def test_cylinder_stage_turns_the_pose():
     from scipy.spatial.transform import Rotation
     R = Rotation.from_euler("x", 30.0, degrees=True).as_matrix()
-    P = view(closed_cylinder(0.05, 0.04), R)
+    tin = closed_cylinder(0.05, 0.04)
+    P = view(tin, R)
     lying = R @ Rotation.from_euler("y", 90.0, degrees=True).as_matrix()        # axis in the tin's plane
-    state = posed_state(P, lying, np.zeros(3))
+    state = posed_state(P, lying, np.zeros(3), canonical=tin)                   # the category shape: a squat tin
     CylinderStage().run(state)
     Rn = state.rotation
     assert np.degrees(np.arccos(min(1.0, abs(Rn[:, 2] @ R[:, 2])))) < 10.0
@@ -154,3 +155,30 @@ def test_the_table_normal_is_a_candidate_axis():
     worse = Rotation.from_rotvec(np.radians(60.0) * R[:, 1]).as_matrix() @ R[:, 2]
     axis2, _, _ = cylinder_axis(P, R[:, 2], candidates=(worse,))
     assert abs(axis2 @ worse) < 0.9                                             # not taken
+
+
+@pytest.mark.parametrize("strip, off", [(15.0, 10.0), (20.0, 10.0)])
+def test_a_lying_can_is_not_stood_up_where_its_outline_says_it_lies(strip, off, monkeypatch):
+    """A tall can lying on its side with only a strip of its curved top in view: those normals follow the standing
+    pattern (all about parallel to the table normal), so the normals alone take the table normal for the axis. The
+    category shape stood on that axis cannot cover the strip's length: the stage keeps the network's lying pose
+    (``SWITCH_FIT_RATIO``); without that check it stands the can up."""
+    from scipy.spatial.transform import Rotation
+
+    import equipose.runtime.stages.cylinder as stage
+    shape = closed_cylinder(0.03, 0.2, n=3000)                                  # a tall can: its outline tells
+    R = Rotation.from_euler("y", 90.0, degrees=True).as_matrix()               # lying: its axis along camera x
+    up = np.array([0.0, -1.0, 0.0])                                             # the table's normal (camera y down)
+    P = shape @ R.T
+    radial = (P - np.outer(P @ R[:, 2], R[:, 2])) @ up / 0.03                   # [P] cos of the side normal to up
+    pts = P[(np.abs(shape[:, 2]) < 0.0999) & (radial > np.cos(np.radians(strip)))]   # the top strip of the side
+    net = Rotation.from_rotvec(np.radians(off) * np.array([0.0, 0.0, 1.0])).as_matrix() @ R   # off° from the truth
+    axis, c0, c = cylinder_axis(pts, net[:, 2], candidates=(up,))
+    assert c < 0.85 * c0 and abs(axis @ net[:, 2]) < 0.7                        # the normals say: another axis
+    for ratio, err in ((stage.SWITCH_FIT_RATIO, off), (np.inf, 90.0)):
+        monkeypatch.setattr(stage, "SWITCH_FIT_RATIO", ratio)
+        state = posed_state(pts, net, np.zeros(3), canonical=shape)
+        state.support_up = up
+        CylinderStage(unsigned=True).run(state)
+        got = np.degrees(np.arccos(min(1.0, abs(state.rotation[:, 2] @ R[:, 2]))))
+        assert got == pytest.approx(err, abs=1.0)

@@ -1,8 +1,11 @@
 """Stage ``cylinder`` (metadata ``shape_prior`` "cylinder" or "open_cylinder"): the symmetry axis of cans and tins
 ("cylinder"), cups and mugs ("open_cylinder") from the observed normals (``equipose.runtime.cylinder.cylinder_axis``),
-replacing the network's when it fits clearly better. A closed cylinder's axis has no sign (its two ends look alike),
-so where the frame has a support plane under a can the pose is half-turned about its x axis if needed to keep +z on
-the plane's side (a standing can reports upright); an open cylinder keeps the network's sign (a cup may stand on its
+replacing the network's when it fits clearly better; for a can without an up prior, only where the category shape
+turned onto that axis (re-centred, the axis held) still fits the points within ``SWITCH_FIT_RATIO`` × the pose's
+residual: the curved side of a can lying half hidden can follow the standing pattern of side and lid normals, its
+outline cannot. A closed cylinder's axis has no sign (its two ends look alike), so where the frame has a support
+plane under a can the pose is half-turned about its x axis if needed to keep +z on the plane's side (a standing can
+reports upright); an open cylinder keeps the network's sign (a cup may stand on its
 rim), and its axis is then refined on the side normals (``refine_side_axis``: the network's axis is the less
 precise one for cups and mugs, the more precise one for cans).
 With an up prior (``state.up``) the axis is given and the stage leaves the pose, except where a can's normals
@@ -20,7 +23,7 @@ import numpy as np
 
 from equipose.core.geometry import rotation_between
 from equipose.core.icp import icp_multi
-from equipose.runtime.cylinder import cylinder_axis, refine_side_axis
+from equipose.runtime.cylinder import SWITCH_ANGLE_DEG, cylinder_axis, refine_side_axis
 from equipose.runtime.stage import ObjectState, Stage, register_stage
 
 __all__ = ["CylinderStage"]
@@ -29,6 +32,8 @@ UP_CONTRADICTION_RATIO = 0.95   # under an up prior: a far axis whose cost is be
                                 # (rendered cans: 0.970 of lying ones flagged, 0.005 of standing ones)
 AXIS_RATIO_CLIP = 2.0       # result extra ``axis_ratio`` (evidence): saturates here
 LYING_ICP_ITERS = 8         # ICP steps that re-centre a can turned onto its side (its axis held level)
+SWITCH_FIT_RATIO = 8.0      # without an up prior: the normals' axis replaces the pose's only where the shape posed on
+                            # it (re-centred, axis held) fits the points within this × the pose's residual
 
 
 @register_stage
@@ -74,6 +79,20 @@ class CylinderStage(Stage):
         if not self.unsigned:                                                   # a cup or a mug
             a = refine_side_axis(normals, a)
         R = rotation_between(a0, a) @ state.rotation                            # [3, 3]
+        switched = abs(float(a @ a0)) < np.cos(np.radians(SWITCH_ANGLE_DEG))   # the normals' far axis won
+        if self.unsigned and switched and not self._fits(state, R):
+            return                                                              # the shape says otherwise
         if self.unsigned and state.support_up is not None and float(R[:, 2] @ state.support_up) < 0.0:
             R = R @ np.diag([1.0, -1.0, -1.0])                                  # the other end up
         state.set_pose(R)
+
+    @staticmethod
+    def _fits(state: ObjectState, R: np.ndarray) -> bool:
+        """Whether the category shape turned onto the normals' axis (``R`` [3, 3]) and re-centred with that axis held
+        (``LYING_ICP_ITERS`` steps) fits the points within ``SWITCH_FIT_RATIO`` × the pose's own residual: the side
+        normals of a can lying half hidden can follow the standing pattern, its outline cannot."""
+        shape, x = state.canonical_category, state.points
+        _, _, own = icp_multi(x, shape, state.rotation[None], state.translation[None], iters=0)
+        _, _, turned = icp_multi(x, shape, R[None], state.translation[None], iters=LYING_ICP_ITERS,
+                                 hold=(2, R[:, 2]))
+        return bool(turned[0] <= SWITCH_FIT_RATIO * own[0])
