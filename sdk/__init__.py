@@ -4,7 +4,7 @@ The SDK core needs only numpy, onnxruntime, opencv and scipy (no torch). Heavy p
 """
 from __future__ import annotations
 
-__version__ = "0.55.0"
+__version__ = "0.56.0"
 
 from equipose import errors  # noqa: F401  (cheap, always available)
 
