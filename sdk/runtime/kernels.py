@@ -11,7 +11,9 @@ Kernels: ICP (point-to-point and point-to-plane) and nearest neighbours (``equip
 sampling (``equipose.core.geometry``), RANSAC plane fit (``equipose.preprocess.plane``), the organized outlier
 filter (``equipose.preprocess.crop``), the box prompt's surfaces (``equipose.preprocess.surfaces``), the mirror plane
 of the frame priors (``equipose.runtime.frame_priors``), point normals (``equipose.core.normals``: the cylinder stage,
-instance mode), the handle fit (``equipose.core.handles``), the open-top test (``equipose.core.opening``: the
+instance mode), the axis line of a body of revolution (``equipose.core.revolution``: the axis_centre stage), the
+handle fit (``equipose.core.handles``), percentiles (``equipose.core.order_statistics``), the densified ICP template
+(``equipose.runtime.template``), the open-top test (``equipose.core.opening``: the
 confidence's evidence), hidden point removal (its spherical flip,
 ``equipose.runtime.visibility``, and convex hull, ``equipose.core.hull``: the view stage).
 """
@@ -41,16 +43,19 @@ def load_kernels() -> float:
     from equipose.core.neighbourhoods import (NeighbourhoodSpec, nearest_neighbourhoods, neighbourhood_specs,
                                               neighbourhoods)
     from equipose.core.presets import LayerSpec
+    from equipose.core.revolution import axis_line
     from equipose.core.nearest import nearest_distances
     from equipose.core.neighbours import NearestNeighbours
     from equipose.core.normals import point_normals
     from equipose.core.opening import top_closure
+    from equipose.core.order_statistics import selected_percentile
     from equipose.core.scores import hypothesis_scores
     from equipose.preprocess.crop import crop_points, organized_outlier_mask
     from equipose.preprocess.plane import find_support_plane, fit_plane_ransac
     from equipose.preprocess.sampling import prepare_points
     from equipose.preprocess.surfaces import box_object_cluster, surface_segments
     from equipose.runtime.frame_priors import mirror_plane
+    from equipose.runtime.template import densify_template
     from equipose.runtime.visibility import visible_mask
 
     t0 = time.perf_counter()
@@ -92,9 +97,12 @@ def load_kernels() -> float:
         crop_points(depth, Kd, **region, support_plane=plane, max_points=256, min_points=8)
     mirror_plane(x, [1.0, 0.0, 0.0])
     point_normals(x)
+    axis_line(x, point_normals(x), [0.0, 0.0, 1.0], np.zeros(3), iters=1)      # the axis_centre stage
     fit_handle(rng.normal(size=(60, 3)))
     handle_zone_mask(rng.normal(size=(60, 3)), rng.normal(size=(60, 3)), [1.0, 0.0, 0.0])
     clustered_count(x, np.arange(len(x)) < 4)
+    selected_percentile(x[:, 0].copy(), 95.0)                                  # float64 heights (ObjectState)
+    densify_template(x, 2)                                                      # the re-scoring's denser template
     _loaded_s = time.perf_counter() - t0
     if _loaded_s > 2.0:
         _log.info("compiled the geometry kernels in %.0f s (cached for later runs)", _loaded_s)
