@@ -368,11 +368,11 @@ class PoseEstimator:
                 out[i] = r
             if self.instance is not None:                  # the pose against the frame; the box's other clusters
                 for j, i in enumerate(slots):
-                    frame = {"crop_options": {**crop_options, **owns[j]}, "level": levels[j]}
-                    out[i] = self._check_instance(depth_m, Kf, regions[i], out[i], crops[j], frame, opts)
+                    out[i] = self._check_instance(depth_m, Kf, regions[i], out[i], crops[j],
+                                                  {**crop_options, **owns[j]}, levels[j], opts)
         return out
 
-    def _check_instance(self, depth_m, K, region: dict, result: PoseResult, crop, frame: dict,
+    def _check_instance(self, depth_m, K, region: dict, result: PoseResult, crop, crop_options: dict, level,
                         opts: dict) -> PoseResult:
         """Instance mode: the pose checked against its crop and the depth frame (``equipose.runtime.instance_clusters``:
         result extras ``model_fit``, the share of the crop's points within 5 mm of the posed model, and
@@ -380,9 +380,9 @@ class PoseEstimator:
         several depth clusters and whose pose is seen through is cropped again beyond and before the chosen cluster,
         each crop posed, and the pose seen through least kept; then extras ``clusters_tried``: [{"depth_m", "points",
         "fit", "see_through"} (+ the re-crop's "min_depth", "max_depth" crop options)] per candidate, the box-evidence
-        crop first, and ``cluster_choice``: "box" or "fit". ``frame``: what the first crop was made and posed with
-        (``crop_options`` including its own support plane, ``level``: that plane), which every re-crop shares (no up
-        prior: instance mode takes none); ``opts``: the frame's checked crop options (depth range)."""
+        crop first, and ``cluster_choice``: "box" or "fit". Every re-crop shares the first crop's ``crop_options``
+        (its own support plane included) and is posed on that plane, ``level`` (no up prior: instance mode takes
+        none); ``opts``: the frame's checked crop options (depth range)."""
         t0 = time.perf_counter()
         model = self.instance.verify_m
         cands, crops, gates = [result], [crop], [{}]
@@ -392,9 +392,9 @@ class PoseEstimator:
             for gate in other_cluster_gates(crop.points, opts.get("min_depth", 0.1), opts.get("max_depth", 10.0)):
                 try:
                     c = self.crop(depth_m, K, box=region["box"], depth_unit="m", prevalidated=True,
-                                  **{**frame["crop_options"], **gate})
+                                  **{**crop_options, **gate})
                     prep = _crop.prepare_points(c.points, self.num_points, self.scale)
-                    support = resolve_support_plane(frame["level"], c.points)      # None: no plane under it
+                    support = resolve_support_plane(level, c.points)                # None: no plane under it
                     r = self._infer([prep], [c], [0.0], [0.0], [len(c.points)], support_planes=[support])[0]
                 except EquiposeError:                                           # nothing left there: no candidate
                     continue

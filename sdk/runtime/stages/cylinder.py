@@ -23,7 +23,7 @@ import numpy as np
 
 from equipose.core.geometry import rotation_between
 from equipose.core.icp import icp_multi
-from equipose.runtime.cylinder import SWITCH_ANGLE_DEG, cylinder_axis, refine_side_axis
+from equipose.runtime.cylinder import cylinder_axis, refine_side_axis
 from equipose.runtime.stage import ObjectState, Stage, register_stage
 
 __all__ = ["CylinderStage"]
@@ -75,12 +75,11 @@ class CylinderStage(Stage):
                 state.set_pose(R[0], t[0])
             return
         table = () if state.support_up is None else (state.support_up,)         # standing is a candidate too
-        a, _, _ = cylinder_axis(state.points, a0, normals=normals, candidates=table)
+        a, c0, c = cylinder_axis(state.points, a0, normals=normals, candidates=table)
         if not self.unsigned:                                                   # a cup or a mug
             a = refine_side_axis(normals, a)
         R = rotation_between(a0, a) @ state.rotation                            # [3, 3]
-        switched = abs(float(a @ a0)) < np.cos(np.radians(SWITCH_ANGLE_DEG))   # the normals' far axis won
-        if self.unsigned and switched and not self._fits(state, R):
+        if self.unsigned and c < c0 and not self._fits(state, R):              # the normals' far axis won
             return                                                              # the shape says otherwise
         if self.unsigned and state.support_up is not None and float(R[:, 2] @ state.support_up) < 0.0:
             R = R @ np.diag([1.0, -1.0, -1.0])                                  # the other end up
